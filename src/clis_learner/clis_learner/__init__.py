@@ -1,0 +1,1 @@
+"""clis_learner: episode memory, resampling, importance-sampled updates, experiments."""

@@ -1,0 +1,1 @@
+"""clis_modules: CLIS learning modules (innate, view, place) and the arbiter."""

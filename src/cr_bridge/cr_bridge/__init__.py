@@ -1,0 +1,1 @@
+"""cr_bridge: the robot interface for the real Cyber Rodent."""

@@ -1,0 +1,1 @@
+"""Pure core: numpy/scipy only, no rclpy or message types."""
