@@ -1,0 +1,228 @@
+"""Frozen parameter dataclasses whose defaults live in ``config/`` files.
+
+Every tunable of the project is declared once, as a field of a frozen dataclass with its type
+and its allowed range (``param(lo, hi)`` or ``param(choices=...)``). Values come from the
+ROS 2 parameter files in ``config/`` (``node: ros__parameters: ...``), so that the headless
+runner and the ROS nodes read the same numbers. A bad value is rejected at load time with a
+message that names the file, the key and the allowed range.
+
+Example
+-------
+>>> @dataclass(frozen=True)
+... class Foo:
+...     alpha: float = param(0.0, 1.0, doc="step size")
+>>> build(Foo, {"alpha": 0.1}, where="foo").alpha
+0.1
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import typing
+from dataclasses import MISSING, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+__all__ = [
+    'ConfigError', 'param', 'build', 'load_yaml', 'ros_parameters', 'config_dir', 'replace',
+    'dataclass', 'as_dict', 'set_dotted',
+]
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown, of the wrong type or out of range."""
+
+
+def param(lo: float | None = None, hi: float | None = None, *, choices: tuple | None = None,
+          doc: str = '') -> Any:
+    """Declare a parameter field: required (no code default), with its allowed range.
+
+    Parameters
+    ----------
+    lo, hi : float, optional
+        Inclusive bounds for numbers (for sequences: for every element).
+    choices : tuple, optional
+        Allowed values (for strings).
+    doc : str
+        One line shown in error messages and ``--help``.
+    """
+    return field(metadata={'lo': lo, 'hi': hi, 'choices': choices, 'doc': doc})
+
+
+def _describe(meta: Mapping[str, Any]) -> str:
+    if meta.get('choices') is not None:
+        return 'one of ' + ', '.join(repr(c) for c in meta['choices'])
+    lo, hi = meta.get('lo'), meta.get('hi')
+    if lo is None and hi is None:
+        return 'any value of the declared type'
+    return f'in [{lo if lo is not None else "-inf"}, {hi if hi is not None else "inf"}]'
+
+
+def _check_number(value: Any, where: str, meta: Mapping[str, Any], integer: bool) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f'{where} = {value!r} must be a number, {_describe(meta)}')
+    if integer and float(value) != int(value):
+        raise ConfigError(f'{where} = {value!r} must be an integer, {_describe(meta)}')
+    if not math.isfinite(float(value)):
+        raise ConfigError(f'{where} = {value!r} must be finite, {_describe(meta)}')
+    lo, hi = meta.get('lo'), meta.get('hi')
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise ConfigError(f'{where} = {value!r} is out of range: must be {_describe(meta)}')
+    return int(value) if integer else float(value)
+
+
+def _convert(tp: Any, value: Any, where: str, meta: Mapping[str, Any]) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, Mapping):
+            raise ConfigError(f'{where} must be a mapping of the fields of {tp.__name__}')
+        return build(tp, value, where=where)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f'{where} = {value!r} must be true or false')
+        return value
+    if tp is int:
+        return _check_number(value, where, meta, integer=True)
+    if tp is float:
+        return _check_number(value, where, meta, integer=False)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f'{where} = {value!r} must be a string, {_describe(meta)}')
+        if meta.get('choices') is not None and value not in meta['choices']:
+            raise ConfigError(f'{where} = {value!r} is not allowed: must be {_describe(meta)}')
+        return value
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f'{where} = {value!r} must be a list')
+        if len(args) == 2 and args[1] is Ellipsis:
+            elem_types = [args[0]] * len(value)
+        else:
+            if len(value) != len(args):
+                raise ConfigError(f'{where} = {value!r} must have {len(args)} elements')
+            elem_types = list(args)
+        return tuple(_convert(t, v, f'{where}[{k}]', meta)
+                     for k, (t, v) in enumerate(zip(elem_types, value)))
+    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _convert(args[0], value, where, meta)
+    return value
+
+
+def build(cls: type, mapping: Mapping[str, Any], where: str = '') -> Any:
+    """Construct the frozen dataclass ``cls`` from ``mapping``, validating every field.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``where.key`` for a missing key, an unknown key (with the allowed keys) or a
+        value outside its declared range.
+    """
+    if not isinstance(mapping, Mapping):
+        raise ConfigError(f'{where or cls.__name__} must be a mapping')
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    prefix = f'{where}.' if where else ''
+    unknown = sorted(set(mapping) - set(fields))
+    if unknown:
+        raise ConfigError(f'unknown key {prefix}{unknown[0]}; allowed keys: '
+                          + ', '.join(sorted(fields)))
+    kwargs = {}
+    for name, f in fields.items():
+        if name not in mapping:
+            if f.default is not MISSING or f.default_factory is not MISSING:
+                continue
+            raise ConfigError(f'missing key {prefix}{name} ({f.metadata.get("doc", "")}; '
+                              f'{_describe(f.metadata)})')
+        kwargs[name] = _convert(hints[name], mapping[name], prefix + name, f.metadata)
+    obj = cls(**kwargs)
+    check = getattr(obj, 'validate', None)
+    if callable(check):
+        try:
+            check()
+        except ConfigError:
+            raise
+        except ValueError as exc:
+            raise ConfigError(f'{where or cls.__name__}: {exc}') from exc
+    return obj
+
+
+def as_dict(obj: Any) -> dict:
+    """Plain nested dict of a parameter dataclass (tuples become lists), for YAML/JSON."""
+    def conv(v: Any) -> Any:
+        if dataclasses.is_dataclass(v):
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, (tuple, list)):
+            return [conv(x) for x in v]
+        return v
+    return conv(obj)
+
+
+def replace(obj: Any, **changes: Any) -> Any:
+    """``dataclasses.replace`` that re-validates through :func:`build`."""
+    d = as_dict(obj)
+    d.update(changes)
+    return build(type(obj), d)
+
+
+def set_dotted(mapping: dict, dotted: str, value: Any) -> None:
+    """Set ``mapping['a']['b'] = value`` for ``dotted = 'a.b'``; the path must exist."""
+    keys = dotted.split('.')
+    node = mapping
+    for k in keys[:-1]:
+        if not isinstance(node, dict) or k not in node:
+            raise ConfigError(f'unknown key {dotted} (no section {k!r})')
+        node = node[k]
+    if keys[-1] not in node:
+        raise ConfigError(f'unknown key {dotted}; allowed keys here: ' + ', '.join(sorted(node)))
+    node[keys[-1]] = value
+
+
+def config_dir() -> Path:
+    """The folder holding the default config files.
+
+    ``$CLIS_CONFIG_DIR`` if set, else the repository's ``config/`` (when run from source),
+    else the installed ``share/cr_sim/config``.
+    """
+    env = os.environ.get('CLIS_CONFIG_DIR')
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        if (parent / 'config' / 'arena.yaml').is_file() and (parent / 'src').is_dir():
+            return parent / 'config'
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        return Path(get_package_share_directory('cr_sim')) / 'config'
+    except Exception:  # noqa: BLE001 - not installed: fall through to a clear error
+        pass
+    raise ConfigError('cannot find the config folder: set CLIS_CONFIG_DIR')
+
+
+def load_yaml(path: str | os.PathLike) -> dict:
+    """Read a YAML file into a dict, with a clear error for a missing or malformed file."""
+    p = Path(path)
+    try:
+        with open(p, encoding='utf-8') as fh:
+            data = yaml.safe_load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f'{p}: no such file') from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'{p}: not valid YAML: {exc}') from None
+    if not isinstance(data, dict):
+        raise ConfigError(f'{p}: expected a mapping at the top level')
+    return data
+
+
+def ros_parameters(path: str | os.PathLike, node: str = '/**') -> dict:
+    """The ``ros__parameters`` mapping of ``node`` in a ROS 2 parameter file."""
+    data = load_yaml(path)
+    if node not in data or 'ros__parameters' not in (data[node] or {}):
+        raise ConfigError(f'{path}: missing "{node}: ros__parameters:" section')
+    return data[node]['ros__parameters']
