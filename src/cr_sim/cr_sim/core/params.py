@@ -17,13 +17,14 @@ Example
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 import dataclasses
+from dataclasses import MISSING, dataclass, field
 import math
 import os
-import typing
-from dataclasses import MISSING, dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+import typing
+from typing import Any
 
 import yaml
 

@@ -1,0 +1,60 @@
+# CLIS on ROS 2 — every target brings the workspace up to date first (idempotent `setup`).
+#   make run    set up, then run the main job on the simulator
+#   make test   set up, then lint and run the test suite
+#   make bench  set up, then run the benchmarks (results in docs/benchmarks.md)
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+.DELETE_ON_ERROR:
+
+VENV := .venv
+# A Python 3.10-3.13 (the ROS 2 Jazzy wheels exist for cp310-cp313).
+PYTHON ?= $(shell for p in python3.11 python3.12 python3.10 python3.13 python3; do \
+  command -v $$p >/dev/null 2>&1 && $$p -c 'import sys; sys.exit(not (3, 10) <= sys.version_info[:2] <= (3, 13))' 2>/dev/null && { echo $$p; break; }; done)
+# A system ROS 2 Jazzy that is sourced is used instead of the PyPI wheels.
+SYSTEM_ROS := $(shell [ "$$ROS_DISTRO" = jazzy ] && python3 -c 'import rclpy' >/dev/null 2>&1 && echo 1)
+ENV := source ./env.sh
+SOURCES := $(shell find src -type f \( -name '*.py' -o -name package.xml -o -name setup.cfg \
+  -o -path '*/scripts/*' -o -path '*/resource/*' \) -not -path '*/__pycache__/*') $(wildcard config/*)
+RUN_ARGS ?=
+
+.PHONY: help setup run test lint bench clean
+help:
+	@sed -n '2,5p' Makefile | sed 's/^# *//'
+
+setup: $(VENV)/.stamp install/.stamp
+
+$(VENV)/.stamp: requirements.txt requirements-py.txt
+ifeq ($(SYSTEM_ROS),1)
+	@echo "setup: using the sourced system ROS 2 $$ROS_DISTRO"
+	python3 -m venv --system-site-packages $(VENV)
+	$(VENV)/bin/pip install -q -r requirements-py.txt
+else
+	@test -n "$(PYTHON)" || { echo "setup: need Python 3.10-3.13 (python3.11 recommended)"; exit 1; }
+	@echo "setup: creating $(VENV) with $(PYTHON) and the ROS 2 Jazzy wheels"
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install -q -r requirements.txt -r requirements-py.txt
+endif
+	@touch $@
+
+install/.stamp: $(VENV)/.stamp $(SOURCES)
+	@echo "setup: colcon build"
+	@mkdir -p log; $(ENV) 2>/dev/null; AMENT_PREFIX_PATH="$(CURDIR)/$(VENV)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}" \
+	  $(VENV)/bin/colcon --log-base log build --base-paths src --symlink-install \
+	  --event-handlers console_cohesion- summary- >log/colcon-build.txt 2>&1 \
+	  || { mkdir -p log; cat log/colcon-build.txt; exit 1; }
+	@touch $@
+
+run: setup
+	@$(ENV) && clis doctor $(RUN_ARGS)
+
+lint: setup
+	$(VENV)/bin/ruff check src test bench
+
+test: lint
+	@$(ENV) && python -m pytest $(PYTEST_ARGS)
+
+bench: setup
+	@$(ENV) && python bench/run_all.py
+
+clean:
+	rm -rf build install log $(VENV)

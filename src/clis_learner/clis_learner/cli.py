@@ -1,0 +1,62 @@
+"""``clis``: the project's entry point.
+
+Every subcommand first configures DDS for this machine only (loopback Fast DDS profile, own
+ROS_DOMAIN_ID) unless ``--network`` is given, so that nothing it starts talks to other hosts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from clis_learner.ros_env import apply_ros_env
+
+EPILOG = """\
+examples:
+  clis doctor                      check the ROS 2 setup: distro, rmw, DDS profile, pub/sub
+  clis --domain-id 7 doctor        same, on a chosen ROS_DOMAIN_ID
+  clis --network doctor            opt in to DDS on all interfaces (e.g. a real robot)
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='clis', description='CLIS with asynchronous modules on ROS 2 (Uchibe & Doya).',
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--network', action='store_true',
+                        help='allow DDS traffic on all interfaces (default: loopback only)')
+    parser.add_argument('--domain-id', type=int, metavar='N',
+                        help='ROS_DOMAIN_ID to use (default: $ROS_DOMAIN_ID or a random 1-100)')
+    sub = parser.add_subparsers(dest='command', metavar='COMMAND')
+    sub.required = True
+    sub.add_parser('doctor', help='print the ROS/DDS setup and check two processes talk')
+    for register in _extra_commands():
+        register(sub)
+    return parser
+
+
+def _extra_commands() -> list:
+    """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
+    registrars = []
+    try:
+        from clis_learner import experiment
+        registrars.append(experiment.register)
+    except ImportError:  # pragma: no cover - before the experiment runner exists
+        pass
+    return registrars
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
+        parser.error(f'--domain-id {args.domain_id} is out of range [0, 232]')
+    apply_ros_env(network=args.network, domain_id=args.domain_id)
+    if args.command == 'doctor':
+        from clis_learner.doctor import run_doctor
+        return run_doctor()
+    return int(args.func(args) or 0)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

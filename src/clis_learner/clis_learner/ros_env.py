@@ -1,0 +1,84 @@
+"""The DDS environment every process of the project starts with: loopback only by default.
+
+DESIGN.md §8: with the Fast DDS profile ``config/fastdds_loopback.xml`` (loaded through
+``FASTRTPS_DEFAULT_PROFILES_FILE``) and ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, nodes send
+nothing on non-loopback interfaces. Each run picks its own ``ROS_DOMAIN_ID`` (unless one is
+set) so parallel runs on one machine don't cross-talk. Talking to a robot on another machine is
+an explicit opt-in (``network=True``, i.e. ``clis --network``) or the user's own profile.
+
+This module must be used *before* rclpy is imported in the process it configures (or to build
+the environment of child processes); it imports no ROS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import MutableMapping
+import os
+from pathlib import Path
+import secrets
+
+from cr_sim.core.params import config_dir
+
+PROFILE_VAR = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+PROFILE_NAME = 'fastdds_loopback.xml'
+#: Fast DDS maps domain d to UDP ports 7400 + 250 d (+ offsets); ids above ~100 collide with
+#: Linux ephemeral ports, so runs draw from this range.
+DOMAIN_RANGE = (1, 100)
+
+
+def loopback_profile() -> Path:
+    """Path of the project's loopback-only Fast DDS profile."""
+    return config_dir() / PROFILE_NAME
+
+
+def pick_domain_id() -> int:
+    """A random ROS_DOMAIN_ID in :data:`DOMAIN_RANGE` for one run (or one test session)."""
+    lo, hi = DOMAIN_RANGE
+    return lo + secrets.randbelow(hi - lo + 1)
+
+
+def apply_ros_env(env: MutableMapping[str, str] | None = None, *, network: bool = False,
+                  domain_id: int | None = None) -> MutableMapping[str, str]:
+    """Set the DDS variables in ``env`` (default: ``os.environ``) and return it.
+
+    Parameters
+    ----------
+    env : mapping, optional
+        Environment to modify in place (``os.environ`` if None).
+    network : bool
+        Opt in to other machines: do not load the loopback profile and do not restrict
+        discovery to localhost. A profile the user set is always kept.
+    domain_id : int, optional
+        Force this ROS_DOMAIN_ID; otherwise keep the one set, or pick a random one.
+    """
+    env = os.environ if env is None else env
+    if domain_id is not None:
+        env['ROS_DOMAIN_ID'] = str(int(domain_id))
+    elif not env.get('ROS_DOMAIN_ID'):
+        env['ROS_DOMAIN_ID'] = str(pick_domain_id())
+    if network:
+        if env.get(PROFILE_VAR, '').endswith(PROFILE_NAME):
+            del env[PROFILE_VAR]
+        if env.get('ROS_AUTOMATIC_DISCOVERY_RANGE') == 'LOCALHOST':
+            del env['ROS_AUTOMATIC_DISCOVERY_RANGE']
+        env.pop('CLIS_LOOPBACK', None)
+        return env
+    env.setdefault(PROFILE_VAR, str(loopback_profile()))
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['CLIS_LOOPBACK'] = '1'
+    return env
+
+
+def describe(env: MutableMapping[str, str] | None = None) -> dict[str, str]:
+    """What is in force, for ``clis doctor`` and run headers."""
+    env = os.environ if env is None else env
+    profile = env.get(PROFILE_VAR, '')
+    return {
+        'ROS_DISTRO': env.get('ROS_DISTRO', 'jazzy (PyPI wheels)'),
+        'RMW_IMPLEMENTATION': env.get('RMW_IMPLEMENTATION', '(default)'),
+        'ROS_DOMAIN_ID': env.get('ROS_DOMAIN_ID', '0 (unset)'),
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '(default)'),
+        'DDS profile': profile or '(none: Fast DDS defaults, all interfaces)',
+        'scope': ('loopback only' if profile.endswith(PROFILE_NAME)
+                  else 'network (opted in or user profile)'),
+    }

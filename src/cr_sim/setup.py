@@ -1,0 +1,32 @@
+import os
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+package_name = 'cr_sim'
+HERE = Path(__file__).resolve().parent
+
+# The project's config/ (parameter files, arena, DDS profile) is installed with cr_sim,
+# the package every other one depends on; config_dir() finds it there.
+CONFIG = sorted(str(p) for p in (HERE.parent.parent / 'config').glob('*.*'))
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', [os.path.relpath(c, HERE) for c in CONFIG]),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='CLIS maintainers',
+    maintainer_email='clis@example.org',
+    description='Cyber Rodent arena simulator: seeded core, Gymnasium env, ROS 2 node.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+        ],
+    },
+)

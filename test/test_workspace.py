@@ -1,0 +1,131 @@
+"""Workspace foundation: packages installed where `ros2 run` looks, real DDS, loopback only."""
+
+from __future__ import annotations
+
+import ast
+import os
+from pathlib import Path
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+from clis_learner.doctor import exchange
+from clis_learner.ros_env import PROFILE_VAR, apply_ros_env
+import pytest
+
+PACKAGES = ('clis_modules', 'clis_learner', 'cr_bridge', 'cr_sim')
+
+
+def console_scripts(setup_py: Path) -> list[str]:
+    """Executable names declared in a setup.py's ``console_scripts`` (parsed, not run)."""
+    tree = ast.parse(setup_py.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Dict):
+            for key, value in zip(node.keys, node.values):
+                if isinstance(key, ast.Constant) and key.value == 'console_scripts':
+                    return [ast.literal_eval(e).split('=')[0].strip() for e in value.elts]
+    return []
+
+
+def test_console_scripts_parser_reads_declared_names(tmp_path):
+    setup = tmp_path / 'setup.py'
+    setup.write_text("setup(entry_points={'console_scripts': ['a = p.m:main', 'b=p.n:main']})")
+    assert console_scripts(setup) == ['a', 'b']
+
+
+@pytest.mark.parametrize('pkg', PACKAGES)
+def test_package_manifest_is_format3_ament_python(repo, pkg):
+    root = ET.parse(repo / 'src' / pkg / 'package.xml').getroot()
+    assert root.get('format') == '3'
+    assert root.findtext('name') == pkg
+    assert root.find('export/build_type').text == 'ament_python'
+    assert (repo / 'src' / pkg / 'resource' / pkg).is_file()
+
+
+@pytest.mark.parametrize('pkg', PACKAGES)
+def test_console_scripts_installed_where_ros2_run_looks(repo, install_dir, pkg):
+    from ament_index_python.packages import get_package_prefix
+
+    prefix = Path(get_package_prefix(pkg))
+    assert prefix.resolve() == (install_dir / pkg).resolve()
+    for exe in console_scripts(repo / 'src' / pkg / 'setup.py'):
+        path = prefix / 'lib' / pkg / exe
+        assert path.is_file(), f'{pkg}/{exe} is not installed at {path}'
+        assert os.access(path, os.X_OK), f'{path} is not executable'
+
+
+def test_every_declared_script_answers_help(repo, install_dir):
+    for pkg in PACKAGES:
+        for exe in console_scripts(repo / 'src' / pkg / 'setup.py'):
+            path = install_dir / pkg / 'lib' / pkg / exe
+            out = subprocess.run([str(path), '--help'], capture_output=True, text=True,
+                                 timeout=60)
+            assert out.returncode == 0, f'{pkg}/{exe} --help failed: {out.stderr}'
+            assert 'usage' in out.stdout.lower()
+
+
+def test_clis_is_on_path_after_sourcing_the_install(repo, install_dir):
+    out = subprocess.run(['bash', '-c', f'source {repo}/env.sh && command -v clis'],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0
+    assert out.stdout.strip().startswith(str(install_dir))
+
+
+def test_apply_ros_env_loopback_by_default_and_network_is_opt_in():
+    env: dict[str, str] = {}
+    apply_ros_env(env)
+    assert env[PROFILE_VAR].endswith('fastdds_loopback.xml')
+    assert Path(env[PROFILE_VAR]).is_file()
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert 1 <= int(env['ROS_DOMAIN_ID']) <= 100
+    apply_ros_env(env, network=True)
+    assert PROFILE_VAR not in env and 'ROS_AUTOMATIC_DISCOVERY_RANGE' not in env
+    user = {PROFILE_VAR: '/etc/my_profile.xml', 'ROS_DOMAIN_ID': '42'}
+    apply_ros_env(user, network=True)
+    assert user[PROFILE_VAR] == '/etc/my_profile.xml' and user['ROS_DOMAIN_ID'] == '42'
+
+
+@pytest.mark.ros
+def test_two_processes_exchange_messages_over_fast_dds():
+    ok, out, seconds = exchange(timeout=20, want=10)
+    assert ok, out
+    assert 'received 10' in out
+
+
+def tx_packets() -> dict[str, int]:
+    """Transmit packet counters of every non-loopback network interface."""
+    counters = {}
+    for iface in Path('/sys/class/net').iterdir():
+        if iface.name == 'lo':
+            continue
+        stat = iface / 'statistics' / 'tx_packets'
+        if stat.is_file():
+            counters[iface.name] = int(stat.read_text())
+    return counters
+
+
+@pytest.mark.ros
+@pytest.mark.skipif(not Path('/sys/class/net').is_dir(), reason='needs Linux sysfs')
+def test_default_dds_sends_nothing_off_loopback():
+    # Another process on the machine may transmit now and then; an exchange window with zero
+    # transmitted packets on every non-loopback interface is what proves the point.
+    deltas = []
+    for _ in range(3):
+        before = tx_packets()
+        ok, out, _ = exchange(timeout=20, want=40)
+        after = tx_packets()
+        assert ok, out
+        delta = {k: after[k] - before[k] for k in before}
+        deltas.append(delta)
+        if not any(delta.values()):
+            return
+    pytest.fail(f'non-loopback interfaces transmitted during every DDS exchange: {deltas}')
+
+
+@pytest.mark.ros
+def test_clis_doctor_passes(repo):
+    out = subprocess.run([sys.executable, '-m', 'clis_learner.cli', 'doctor'],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert 'doctor: PASS' in out.stdout
+    assert 'loopback only' in out.stdout
