@@ -27,6 +27,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'sim = cr_sim.sim_node:main',
         ],
     },
 )

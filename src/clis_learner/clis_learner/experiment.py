@@ -1,0 +1,285 @@
+"""``clis experiment``: the paper's experiments (Fig. 3-5), headless, over several seeds.
+
+Each (condition, seed) is one *run*: ``episodes`` learning episodes driven by the headless
+runner (:mod:`clis_learner.core.runner`), then evaluation episodes from each start point with
+learning off. Runs go to parallel worker processes; each run's results are written atomically to
+``OUT/runs/`` as soon as it finishes, so an interrupted experiment loses only the runs in flight
+and ``--resume`` continues it. At the end the runs are merged into ``episodes.csv``,
+``eval.csv``, ``summary.json`` and the figures (``fig3a.png`` ...).
+
+A condition is a name (``innate``, ``view``, ``place``, ``sync``, ``async``) optionally followed
+by parameter overrides of ``config/clis.yaml``, ``@key=value`` each, so that variants run side by
+side on the same seeds: ``async@common.beta=200`` or ``sync@learner.resample=zoh``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from dataclasses import dataclass
+import json
+import multiprocessing as mp
+import os
+from pathlib import Path
+import queue
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job
+
+EPILOG = """\
+examples:
+  clis experiment --conditions innate,view,place,sync,async --episodes 1000 --seeds 10 \\
+      --out results/paper
+  clis experiment --conditions async,async@common.beta=200 --episodes 300 --seeds 3 --out /tmp/b
+  clis experiment --figures-only --out results/paper          # redraw from saved runs
+"""
+
+
+def parse_condition(spec: str) -> tuple[str, dict[str, Any]]:
+    """``'async@common.beta=200@learner.resample=zoh'`` -> ``('async', {...})``."""
+    name, *sets = spec.strip().split('@')
+    if name not in CONDITIONS:
+        raise argparse.ArgumentTypeError(
+            f'unknown condition {name!r}: choose from {", ".join(CONDITIONS)} '
+            '(variants as NAME@key=value)')
+    overrides = {}
+    for item in sets:
+        if '=' not in item:
+            raise argparse.ArgumentTypeError(f'override {item!r} in {spec!r} must be key=value')
+        key, value = item.split('=', 1)
+        overrides[key] = _yaml_scalar(value)
+    return name, overrides
+
+
+def _yaml_scalar(text: str) -> Any:
+    import yaml
+    return yaml.safe_load(text)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'experiment', help='run the paper experiments headless and draw Fig. 3-5',
+        description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--conditions', default='innate,view,place,sync,async',
+                   help='comma-separated conditions (default: %(default)s)')
+    p.add_argument('--episodes', type=int, default=1000, help='learning episodes per run')
+    p.add_argument('--seeds', type=int, default=5, help='number of seeds (0..N-1)')
+    p.add_argument('--first-seed', type=int, default=0, help='first seed (default 0)')
+    p.add_argument('--eval-episodes', type=int, default=10,
+                   help='evaluation episodes per start point A-E at the end (default 10)')
+    p.add_argument('--out', type=Path, required=True, help='output folder')
+    p.add_argument('--arena', type=Path, help='arena file (default config/arena.yaml)')
+    p.add_argument('--set', dest='sets', action='append', default=[], metavar='KEY=VALUE',
+                   help='override config/clis.yaml for all conditions, e.g. common.beta=2')
+    p.add_argument('--sim-set', dest='sim_sets', action='append', default=[],
+                   metavar='KEY=VALUE', help='override config/sim.yaml, e.g. sensors.ir_noise=0')
+    p.add_argument('--workers', type=int, default=os.cpu_count() or 1,
+                   help='parallel processes (default: all cores)')
+    p.add_argument('--resume', action='store_true', help='keep finished runs in OUT/runs')
+    p.add_argument('--figures-only', action='store_true', help='only merge and draw')
+    p.add_argument('--quiet', action='store_true', help='no progress output')
+    p.set_defaults(func=main)
+
+
+def _overrides(items: list[str]) -> dict[str, Any]:
+    out = {}
+    for item in items:
+        if '=' not in item:
+            raise SystemExit(f'clis experiment: --set {item!r} must be KEY=VALUE')
+        key, value = item.split('=', 1)
+        out[key] = _yaml_scalar(value)
+    return out
+
+
+@dataclass
+class Progress:
+    """Prints one line with the state of all runs, at most every ``every`` seconds."""
+
+    total_episodes: int
+    runs: int
+    quiet: bool = False
+    every: float = 2.0
+
+    def __post_init__(self) -> None:
+        self.t0 = time.monotonic()
+        self.last = 0.0
+        self.done_eps: dict[int, int] = {}
+        self.finished = 0
+        self.note = ''
+        self.tty = sys.stderr.isatty()
+
+    def update(self, job: int, episodes: int, note: str) -> None:
+        self.done_eps[job] = episodes
+        self.note = note
+        self.show()
+
+    def finish(self, job: int, episodes: int, note: str) -> None:
+        self.done_eps[job] = episodes
+        self.finished += 1
+        self.note = note
+        self.show(force=True)
+
+    def show(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if self.quiet or (not force and now - self.last < self.every):
+            return
+        self.last = now
+        done = sum(self.done_eps.values())
+        frac = done / max(self.total_episodes, 1)
+        elapsed = now - self.t0
+        eta = elapsed * (1 - frac) / frac if frac > 0 else float('nan')
+        bar = '#' * int(30 * frac) + '.' * (30 - int(30 * frac))
+        line = (f'[{bar}] {done}/{self.total_episodes} episodes, {self.finished}/{self.runs} '
+                f'runs, {elapsed / 60:.1f} min, ETA {eta / 60:.1f} min | {self.note}')
+        print(('\r' + line[:160].ljust(160)) if self.tty else line, end='' if self.tty else '\n',
+              file=sys.stderr, flush=True)
+
+
+def _worker(spec: JobSpec, q) -> str:
+    def report(episodes: int, note: str) -> None:
+        q.put(('progress', spec.index, episodes, note))
+    result = run_job(spec, progress=report)
+    path = result.save(spec.run_dir)
+    q.put(('done', spec.index, spec.episodes, f'{spec.label} seed {spec.seed} done'))
+    return str(path)
+
+
+def main(args: argparse.Namespace) -> int:
+    from clis_learner import figures
+
+    out: Path = args.out
+    runs_dir = out / 'runs'
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    conditions = [c for c in args.conditions.split(',') if c.strip()]
+    try:
+        parsed = [parse_condition(c) for c in conditions]
+    except argparse.ArgumentTypeError as exc:
+        print(f'clis experiment: {exc}', file=sys.stderr)
+        return 2
+    if args.episodes < 1 or args.seeds < 1 or args.workers < 1:
+        print('clis experiment: --episodes, --seeds and --workers must be >= 1', file=sys.stderr)
+        return 2
+    common = _overrides(args.sets)
+    sim_overrides = _overrides(args.sim_sets)
+    specs = []
+    for label, (name, overrides) in zip(conditions, parsed):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            specs.append(JobSpec(
+                index=len(specs), label=label.strip(), condition=name,
+                overrides={**common, **overrides}, sim_overrides=sim_overrides, seed=seed,
+                episodes=args.episodes, eval_episodes=args.eval_episodes,
+                arena=str(args.arena) if args.arena else None, run_dir=str(runs_dir)))
+    try:  # validate every parameter set before starting hours of work
+        for spec in specs:
+            spec.validate()
+    except ValueError as exc:
+        print(f'clis experiment: {exc}', file=sys.stderr)
+        return 2
+    (out / 'experiment.json').write_text(json.dumps({
+        'argv': sys.argv, 'conditions': conditions, 'episodes': args.episodes,
+        'seeds': list(range(args.first_seed, args.first_seed + args.seeds)),
+        'eval_episodes': args.eval_episodes, 'sets': common, 'sim_sets': sim_overrides,
+        'arena': str(args.arena) if args.arena else None}, indent=2))
+    todo = [s for s in specs if not (args.resume or args.figures_only) or not s.done()]
+    if args.figures_only:
+        todo = []
+    t0 = time.monotonic()
+    if todo:
+        _run_all(todo, args.workers, args.quiet)
+    wall = time.monotonic() - t0
+    missing = [s for s in specs if not s.done()]
+    if missing:
+        print(f'clis experiment: {len(missing)} runs have no results (e.g. {missing[0].label} '
+              f'seed {missing[0].seed}); rerun with --resume', file=sys.stderr)
+        return 1
+    results = [JobResult.load(s.result_path()) for s in specs]
+    summary = merge(results, out, wall_seconds=wall if todo else None)
+    figures.draw_all(out, results, summary)
+    print(f'\nwrote {out}/episodes.csv, eval.csv, summary.json and figures in {wall / 60:.1f} min')
+    for line in summary['table']:
+        print(line)
+    return 0
+
+
+def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
+    progress = Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
+                        quiet=quiet)
+    ctx = mp.get_context('fork' if sys.platform.startswith('linux') else 'spawn')
+    manager = ctx.Manager()
+    q = manager.Queue()
+    with ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1) as pool:
+        pending = [pool.apply_async(_worker, (spec, q)) for spec in todo]
+        remap = {s.index: k for k, s in enumerate(todo)}
+        while any(not p.ready() for p in pending) or not q.empty():
+            try:
+                kind, index, episodes, note = q.get(timeout=0.5)
+            except queue.Empty:
+                for p in pending:
+                    if p.ready() and not p.successful():
+                        p.get()  # re-raise the worker's exception
+                continue
+            if kind == 'done':
+                progress.finish(remap[index], episodes, note)
+            else:
+                progress.update(remap[index], episodes, note)
+        for p in pending:
+            p.get()
+    manager.shutdown()
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_suffix(path.suffix + '.tmp')
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    if not rows:
+        return
+    fields = list(dict.fromkeys(k for row in rows for k in row))
+    tmp = path.with_suffix('.csv.tmp')
+    with open(tmp, 'w', newline='') as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
+    os.replace(tmp, path)
+
+
+def merge(results: list[JobResult], out: Path, wall_seconds: float | None) -> dict:
+    """All runs into episodes.csv / eval.csv and the summary (with the results table)."""
+    _write_csv(out / 'episodes.csv', [r for res in results for r in res.episodes])
+    _write_csv(out / 'eval.csv', [r for res in results for r in res.evals])
+    labels = list(dict.fromkeys(res.spec['label'] for res in results))
+    by_label: dict[str, dict] = {}
+    table = [f'{"condition":28s} {"seeds":>5s} {"succ/50 first":>13s} {"succ/50 last":>12s} '
+             f'{"eval success":>12s} {"eval time s":>11s}']
+    for label in labels:
+        runs = [res for res in results if res.spec['label'] == label]
+        block = runs[0].block
+        curves = np.array([res.success_curve() for res in runs])  # (seeds, blocks)
+        evals = [res.evals for res in runs]
+        eval_success = np.mean([[e['reached'] for e in ev] for ev in evals])
+        eval_time = np.mean([[e['duration'] for e in ev] for ev in evals])
+        by_label[label] = {
+            'condition': runs[0].spec['condition'], 'overrides': runs[0].spec['overrides'],
+            'seeds': [res.spec['seed'] for res in runs], 'block': block,
+            'successes_per_block_mean': curves.mean(0).tolist(),
+            'successes_per_block_sd': curves.std(0, ddof=1).tolist() if len(runs) > 1 else None,
+            'eval_success_rate': float(eval_success), 'eval_mean_time': float(eval_time),
+            'seconds_per_run': float(np.mean([res.seconds for res in runs])),
+            'final_diagnostics': _mean_dicts([res.final_diagnostics for res in runs]),
+        }
+        table.append(f'{label:28s} {len(runs):5d} {curves[:, 0].mean():13.1f} '
+                     f'{curves[:, -1].mean():12.1f} {eval_success:12.2f} {eval_time:11.1f}')
+    summary = {'conditions': by_label, 'wall_seconds': wall_seconds, 'table': table}
+    _atomic_write_text(out / 'summary.json', json.dumps(summary, indent=2))
+    return summary
+
+
+def _mean_dicts(dicts: list[dict]) -> dict:
+    keys = dict.fromkeys(k for d in dicts for k in d)
+    return {k: float(np.nanmean([d.get(k, np.nan) for d in dicts])) for k in keys}

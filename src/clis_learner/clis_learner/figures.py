@@ -1,0 +1,197 @@
+"""Figures of the experiments (the paper's Fig. 3-5, plus the diagnostics that explain them).
+
+Every figure is drawn from saved runs (:class:`clis_learner.core.runner.JobResult`), so
+``clis experiment --figures-only`` redraws them without rerunning anything.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy import stats  # noqa: E402
+
+MODULE_COLOURS = {'innate': 'black', 'view': 'magenta', 'place': 'green'}
+STARTS = ('A', 'B', 'C', 'D', 'E')
+
+
+def band(curves: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and half-width of the ``level`` t-interval over axis 0 (seeds).
+
+    Parameters
+    ----------
+    curves : np.ndarray, shape (n_seeds, n_points)
+    """
+    mean = curves.mean(0)
+    n = curves.shape[0]
+    if n < 2:
+        return mean, np.zeros_like(mean)
+    half = stats.t.ppf(0.5 + level / 2, n - 1) * curves.std(0, ddof=1) / np.sqrt(n)
+    return mean, half
+
+
+def _labels(results) -> list[str]:
+    return list(dict.fromkeys(r.spec['label'] for r in results))
+
+
+def _runs(results, label):
+    return [r for r in results if r.spec['label'] == label]
+
+
+def fig3a(results, path: Path) -> None:
+    """Successes per block of learning episodes, mean and 95% band over seeds."""
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for label in _labels(results):
+        runs = _runs(results, label)
+        curves = np.array([r.success_curve() for r in runs], float)
+        block = runs[0].block
+        x = (np.arange(curves.shape[1]) + 1) * block
+        mean, half = band(curves)
+        line, = ax.plot(x, mean, label=f'{label} (n={len(runs)})')
+        ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.15)
+    ax.set_xlabel('episodes')
+    ax.set_ylabel(f'successes per {block} episodes')
+    ax.set_ylim(0, block)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc='lower right')
+    ax.set_title('Fig. 3a: learning curves (mean, 95% t-band over seeds)')
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def fig3bc(results, path: Path) -> None:
+    """Share of episodes in which each module was selected, per block, per multi-module run."""
+    labels = [lb for lb in _labels(results) if len(_runs(results, lb)[0].modules) > 1]
+    if not labels:
+        return
+    fig, axes = plt.subplots(len(labels), 1, figsize=(7, 2.4 * len(labels)), squeeze=False)
+    for ax, label in zip(axes[:, 0], labels):
+        runs = _runs(results, label)
+        shares = np.mean([r.selection_shares() for r in runs], axis=0)  # (blocks, modules)
+        x = (np.arange(shares.shape[0]) + 1) * runs[0].block
+        bottom = np.zeros(shares.shape[0])
+        for k, name in enumerate(runs[0].modules):
+            ax.bar(x, shares[:, k], bottom=bottom, width=runs[0].block * 0.9,
+                   color=MODULE_COLOURS.get(name), label=name)
+            bottom += shares[:, k]
+        ax.set_ylim(0, 1)
+        ax.set_ylabel('selection share')
+        ax.set_title(f'{label}: module acting (mean over {len(runs)} seeds)', fontsize=9)
+        ax.legend(fontsize=7, loc='upper right', ncol=3)
+    axes[-1, 0].set_xlabel('episodes')
+    fig.suptitle('Fig. 3b/c: selection ratio over learning', fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def draw_arena(ax, arena: dict) -> None:
+    """Obstacles (short: green, tall: dark), landmarks, destination and starts."""
+    half = arena['half_size']
+    ax.add_patch(plt.Rectangle((-half, -half), 2 * half, 2 * half, fill=False, lw=2))
+    for key, colour in (('short', 'tab:green'), ('tall', 'dimgray')):
+        for x0, y0, x1, y1 in arena[key]:
+            ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, color=colour, alpha=0.9))
+    for x, y in arena['landmarks']:
+        ax.plot(x, y, 'o', color='orange', ms=7, mec='k')
+    dx, dy, r = arena['destination']
+    ax.add_patch(plt.Circle((dx, dy), r, color='red', alpha=0.6))
+    for name, (x, y) in arena['starts'].items():
+        ax.plot(x, y, 'x', color='blue')
+        ax.annotate(name, (x, y), xytext=(3, 3), textcoords='offset points', color='blue')
+    ax.set_xlim(-half, half)
+    ax.set_ylim(-half, half)
+    ax.set_aspect('equal')
+
+
+def fig4(results, path: Path) -> None:
+    """Map of Pr(M_pl | x) at the end of learning, robot heading to the destination."""
+    labels = [lb for lb in _labels(results) if _runs(results, lb)[0].place_map is not None]
+    if not labels:
+        return
+    fig, axes = plt.subplots(1, len(labels), figsize=(4.2 * len(labels), 4), squeeze=False)
+    for ax, label in zip(axes[0], labels):
+        runs = _runs(results, label)
+        pm = runs[0].place_map
+        p = np.nanmean([np.asarray(r.place_map['p'], float) for r in runs], axis=0)
+        half = runs[0].arena['half_size']
+        im = ax.imshow(p, origin='lower', extent=(-half, half, -half, half), vmin=0, vmax=1,
+                       cmap='viridis', interpolation='nearest')
+        draw_arena(ax, runs[0].arena)
+        ax.set_title(f'{label}: Pr(M_pl | x)\n(mean of {len(runs)} seeds; '
+                     f'grid {len(pm["x"])}x{len(pm["y"])})', fontsize=9)
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    fig.suptitle('Fig. 4: probability of selecting the place module at the end of learning',
+                 fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def fig5(results, path: Path) -> None:
+    """Mean time to the destination from each start (evaluation episodes), per condition."""
+    labels = _labels(results)
+    fig, ax = plt.subplots(figsize=(7, 4))
+    width = 0.8 / max(len(labels), 1)
+    for k, label in enumerate(labels):
+        runs = _runs(results, label)
+        per_seed = np.array([[np.mean([e['duration'] for e in r.evals if e['start'] == s])
+                              for s in STARTS] for r in runs])
+        mean, half = band(per_seed)
+        ax.bar(np.arange(len(STARTS)) + k * width, mean, width, yerr=half, capsize=2,
+               label=label)
+    ax.set_xticks(np.arange(len(STARTS)) + width * (len(labels) - 1) / 2)
+    ax.set_xticklabels(STARTS)
+    ax.set_xlabel('start point')
+    ax.set_ylabel('time to destination [s] (timeout = 60)')
+    ax.legend(fontsize=8)
+    ax.grid(axis='y', alpha=0.3)
+    ax.set_title('Fig. 5: time to the destination after learning (95% t-band over seeds)')
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def fig_diagnostics(results, path: Path) -> None:
+    """Why cooperation does or does not happen: selection probability and IS products."""
+    labels = [lb for lb in _labels(results) if len(_runs(results, lb)[0].modules) > 1]
+    if not labels:
+        return
+    fig, axes = plt.subplots(2, len(labels), figsize=(4.5 * len(labels), 6), squeeze=False)
+    for col, label in enumerate(labels):
+        runs = _runs(results, label)
+        modules = runs[0].modules
+        block = runs[0].block
+        for name in modules:
+            p = np.mean([r.block_stat(f'p_{name}', np.mean) for r in runs], axis=0)
+            x = (np.arange(len(p)) + 1) * block
+            axes[0, col].plot(x, p, color=MODULE_COLOURS.get(name), label=name)
+            c = np.mean([r.block_stat(f'log10c_{name}', np.median) for r in runs], axis=0)
+            axes[1, col].plot(x, c, color=MODULE_COLOURS.get(name), label=name)
+        axes[0, col].set_ylim(0, 1)
+        axes[0, col].set_title(f'{label}: Pr(i | x(0)) (eq. 3)', fontsize=9)
+        axes[1, col].set_title(f'{label}: median log10 c at episode end\n'
+                               '(off-policy episodes; eq. 6-7)', fontsize=9)
+        axes[1, col].set_xlabel('episodes')
+        for ax in axes[:, col]:
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def draw_all(out: Path, results, summary: dict) -> list[Path]:
+    """Draw every figure into ``out``; return the files written."""
+    paths = []
+    for name, fn in (('fig3a.png', fig3a), ('fig3bc.png', fig3bc), ('fig4.png', fig4),
+                     ('fig5.png', fig5), ('diagnostics.png', fig_diagnostics)):
+        fn(results, out / name)
+        if (out / name).exists():
+            paths.append(out / name)
+    return paths

@@ -1,0 +1,593 @@
+"""The Cyber Rodent arena simulator: seeded, headless, no ROS.
+
+One :class:`Simulator` holds one robot in one :class:`~cr_sim.core.arena.Arena`::
+
+    sim = Simulator(arena, params, rng)     # rng: the only source of randomness
+    obs = sim.reset(start='A')              # or 'random', 'wander', or a pose (x, y, theta)
+    res = sim.step((v_left, v_right))       # wheel velocities [m/s] held for episode.dt
+    res.reward, res.collision, res.reached, res.timeout, res.done, res.t
+    obs = res.obs                           # sensors computed only on demand (lazy)
+
+Model
+-----
+* Motion: differential drive, exact arc integration (:mod:`cr_sim.core.robot`); the command
+  always goes through :func:`~cr_sim.core.robot.clamp_wheels` (NaN/inf -> 0, +-v_wheel_max).
+* Contact: the robot is a disc. If the end pose of a step would overlap a wall or an obstacle,
+  the forward speed is scaled by the largest factor s in [0, 1] (bisection, 20 halvings) whose
+  end pose does not overlap, the yaw rate is kept: the robot moves up to the contact and still
+  turns, so it can always turn away. The executed wheels ``sim.wheels`` are those of
+  ``(s v, omega)``: integrating them gives the true motion (consistent odometry). Only end
+  poses are checked: a step is at most v_wheel_max * dt = 6.5 cm, so a corner can at most be
+  grazed mid-step (< 5 mm for r = 0.11 m); no pose the simulator ever reports overlaps.
+* The robot *touches* when its last step was blocked or its gap to the nearest surface is below
+  ``episode.contact_tolerance``. A *collision* is a new touch (not touching before the step,
+  touching after it): ``reward_collision`` once, nothing more while it stays pressed.
+* Reward of a step: ``reward_collision`` on a collision, plus ``reward_goal`` when the centre
+  ends within ``goal_radius`` of the destination (episode ends, ``reached``), else 0. The
+  episode also ends (``timeout``, not reached) after ``time_limit`` s. ``step`` after the end
+  raises: call ``reset``.
+* IR: ``n_ir`` beams from the body surface at ``ir_angles_deg`` from the heading; each reads
+  the distance from the surface to the first wall/obstacle (short or tall) along the beam,
+  ``+ N(0, ir_noise_sigma^2)``, clipped to ``[0, ir_range]``; ``ir_range`` when nothing is
+  within range.
+* Omni-camera: the bearing of the destination and of each landmark relative to the heading,
+  ``+ N(0, bearing_noise^2)``, wrapped to (-pi, pi]; ``nan`` when the segment robot->target
+  crosses a tall obstacle or the target is beyond ``camera_range``. Short obstacles and walls
+  hide nothing.
+
+Randomness: the ``rng`` passed in draws the start poses and the wander steering; the sensor
+noise comes from a child generator spawned from it at construction, so whether (and how often)
+a caller observes never changes the starts or the motion. Same seed, same calls -> bit-identical
+results.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+import copy
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from cr_sim.core.arena import Arena
+from cr_sim.core.geometry import box_planes, disc_gap, slab_planes, wrap_angle, wrap_angles
+from cr_sim.core.params import (
+    ConfigError,
+    build,
+    config_dir,
+    dataclass,
+    param,
+    ros_parameters,
+    set_dotted,
+)
+from cr_sim.core.robot import (
+    RobotParams,
+    clamp_wheels,
+    integrate_arc,
+    twist_to_wheels,
+    wheels_to_twist,
+)
+from cr_sim.core.wander import WanderParams, WanderPolicy
+
+__all__ = [
+    'SensorParams', 'EpisodeParams', 'SimParams', 'load_sim_params', 'Observation',
+    'StepResult', 'Simulator', 'IGNORED_SECTIONS',
+]
+
+#: Sections of ``sim.ros__parameters`` read by the ROS node, not by the core.
+IGNORED_SECTIONS = ('node',)
+
+_N_BISECT = 20          # halvings of the contact search: resolution 2^-20 of a step
+_MAX_TRIES = 100_000    # rejection sampling of a random free start
+
+
+# ------------------------------------------------------------------------------------------
+# parameters
+
+@dataclass(frozen=True)
+class SensorParams:
+    """IR proximity sensors and omni-camera (``sim.yaml`` section ``sensors``)."""
+
+    ir_angles_deg: tuple[float, ...] = param(
+        -180.0, 180.0, doc='beam directions from the heading, counter-clockwise [deg]')
+    ir_range: float = param(0.01, 5.0, doc='maximum IR reading [m]')
+    ir_noise_sigma: float = param(0.0, 1.0, doc='std of the Gaussian IR noise [m]')
+    camera_range: float = param(0.1, 100.0, doc='targets farther than this are not seen [m]')
+    bearing_noise_deg: float = param(0.0, 90.0, doc='std of the bearing noise [deg]')
+
+    def validate(self) -> None:
+        """At least one IR beam."""
+        if len(self.ir_angles_deg) < 1:
+            raise ValueError('sensors.ir_angles_deg needs at least one beam')
+
+
+@dataclass(frozen=True)
+class EpisodeParams:
+    """Time step, rewards and episode end (``sim.yaml`` section ``episode``)."""
+
+    dt: float = param(0.001, 1.0, doc='simulation step: a command is held this long [s]')
+    time_limit: float = param(0.01, 3600.0, doc='episode length before timeout [s]')
+    reward_goal: float = param(-100.0, 100.0, doc='reward on reaching the destination')
+    reward_collision: float = param(-100.0, 100.0, doc='reward on each new contact')
+    contact_tolerance: float = param(0.0, 0.1, doc='gap below which the robot touches [m]')
+    wander_time: float = param(0.0, 600.0, doc="duration of reset(start='wander') [s]")
+
+    def validate(self) -> None:
+        """The time limit holds at least one step."""
+        if self.dt > self.time_limit:
+            raise ValueError(f'episode.dt = {self.dt} exceeds episode.time_limit = '
+                             f'{self.time_limit}')
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Everything the simulator core reads from ``sim.yaml`` (``sim: ros__parameters:``)."""
+
+    robot: RobotParams = param(doc='section robot')
+    sensors: SensorParams = param(doc='section sensors')
+    episode: EpisodeParams = param(doc='section episode')
+    wander: WanderParams = param(doc='section wander')
+
+
+def _flatten(d: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f'{prefix}{k}'
+        if isinstance(v, Mapping):
+            out.update(_flatten(v, key + '.'))
+        else:
+            out[key] = v
+    return out
+
+
+def load_sim_params(path: str | os.PathLike | None = None,
+                    overrides: Mapping[str, Any] | None = None) -> SimParams:
+    """Read ``sim: ros__parameters:`` of a ROS 2 parameter file into :class:`SimParams`.
+
+    Parameters
+    ----------
+    path : path-like, optional
+        Default ``config_dir() / 'sim.yaml'``.
+    overrides : Mapping, optional
+        Values replacing the file's, as a nested mapping (``{'robot': {'radius': 0.1}}``)
+        and/or dotted keys (``{'robot.radius': 0.1}``). Every key must exist in the file.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the key: missing, unknown, wrong type or out of range.
+        Sections listed in :data:`IGNORED_SECTIONS` (``node``) are left to the ROS node.
+    """
+    p = Path(path) if path is not None else config_dir() / 'sim.yaml'
+    raw = ros_parameters(p, node='sim')
+    data = {k: copy.deepcopy(v) for k, v in raw.items() if k not in IGNORED_SECTIONS}
+    try:
+        for key, value in _flatten(overrides or {}).items():
+            set_dotted(data, key, value)
+        return build(SimParams, data, where='sim')
+    except ConfigError as exc:
+        raise ConfigError(f'{p}: {exc}') from None
+
+
+# ------------------------------------------------------------------------------------------
+# results
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """What the robot senses at time ``t`` (arrays are read-only).
+
+    Attributes
+    ----------
+    t : float
+        Time since reset [s].
+    ir : np.ndarray, shape (n_ir,)
+        Distance from the body surface to the first wall/obstacle along each beam [m], in
+        ``[0, ir_range]``; ``ir_range`` when nothing is within range.
+    dest_bearing : float
+        Bearing of the destination relative to the heading [rad], in (-pi, pi], counter-
+        clockwise positive; ``nan`` when not seen.
+    landmark_bearings : np.ndarray, shape (n_landmarks,)
+        Same for each landmark, in arena-file order.
+    wheels : np.ndarray, shape (2,)
+        Executed ``(v_left, v_right)`` of the last step [m/s] (odometry); zeros after reset.
+    """
+
+    t: float
+    ir: np.ndarray
+    dest_bearing: float
+    landmark_bearings: np.ndarray
+    wheels: np.ndarray
+
+    @property
+    def d_o(self) -> float:
+        """Distance to the nearest obstacle seen by the IR: ``min(ir)`` [m]."""
+        return float(self.ir.min())
+
+    @property
+    def dest_visible(self) -> bool:
+        """Whether the destination is seen."""
+        return not math.isnan(self.dest_bearing)
+
+    @property
+    def landmarks_visible(self) -> np.ndarray:
+        """Which landmarks are seen, shape (n_landmarks,), bool."""
+        return ~np.isnan(self.landmark_bearings)
+
+
+class StepResult:
+    """Outcome of one :meth:`Simulator.step`.
+
+    Attributes
+    ----------
+    t : float
+        Time after the step [s].
+    reward : float
+    collision : bool
+        A new contact began during this step.
+    reached : bool
+        The robot centre is within ``goal_radius`` of the destination (episode over).
+    timeout : bool
+        ``time_limit`` reached without reaching the destination (episode over).
+    """
+
+    __slots__ = ('t', 'reward', 'collision', 'reached', 'timeout', '_sim', '_tick', '_obs')
+
+    def __init__(self, t: float, reward: float, collision: bool, reached: bool, timeout: bool,
+                 sim: Simulator, tick: int, obs: Observation | None = None) -> None:
+        self.t = t
+        self.reward = reward
+        self.collision = collision
+        self.reached = reached
+        self.timeout = timeout
+        self._sim = sim
+        self._tick = tick
+        self._obs = obs
+
+    @property
+    def done(self) -> bool:
+        """The episode is over (reached or timeout)."""
+        return self.reached or self.timeout
+
+    @property
+    def obs(self) -> Observation:
+        """The observation after this step, computed on first access.
+
+        Raises
+        ------
+        RuntimeError
+            If the simulator has stepped or reset since (the state is gone).
+        """
+        if self._obs is None:
+            if self._sim._tick != self._tick:
+                raise RuntimeError('StepResult.obs read after the simulator moved on: read it '
+                                   'before the next step/reset, or use step(u, observe=True)')
+            self._obs = self._sim.observe()
+        return self._obs
+
+    def __repr__(self) -> str:
+        return (f'StepResult(t={self.t:.3f}, reward={self.reward}, collision={self.collision}, '
+                f'reached={self.reached}, timeout={self.timeout})')
+
+
+# ------------------------------------------------------------------------------------------
+# the simulator
+
+class Simulator:
+    """The CR in the arena (module docstring for the model).
+
+    Parameters
+    ----------
+    arena : Arena
+        Layout; checked against ``params.robot.radius``.
+    params : SimParams
+        Robot, sensors, episode and wander parameters.
+    rng : np.random.Generator
+        The only source of randomness (start poses, wander, and via a spawned child, noise).
+    """
+
+    def __init__(self, arena: Arena, params: SimParams, rng: np.random.Generator) -> None:
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError('rng must be a numpy.random.Generator')
+        arena.check(params.robot.radius)
+        self.arena = arena
+        self.params = params
+        self._rng = rng
+        try:
+            self._noise_rng = rng.spawn(1)[0]
+        except (TypeError, AttributeError):   # a generator without a SeedSequence
+            self._noise_rng = np.random.default_rng(int(rng.integers(2**63)))
+
+        rp, sp, ep = params.robot, params.sensors, params.episode
+        self._r = rp.radius
+        self._b = rp.wheel_base
+        self._vmax = rp.v_wheel_max
+        self._dt = ep.dt
+        # integer step count of the time limit (t = k dt, no accumulated rounding)
+        self._k_max = max(1, math.ceil(ep.time_limit / ep.dt - 1e-9))
+        self._boxes = arena.box_tuples()
+        self._half = arena.half
+        dest = arena.destination
+        self._dest = (dest.x, dest.y)
+        self._goal_r2 = dest.goal_radius ** 2
+        self._tol = ep.contact_tolerance
+
+        # sensor model: rows = IR beams then camera targets (destination, landmarks);
+        # columns = tall obstacles, short obstacles, then the 4 walls
+        self._ir_angles = np.radians(np.asarray(sp.ir_angles_deg, dtype=np.float64))
+        self._n_ir = len(self._ir_angles)
+        self._targets = np.array([[dest.x, dest.y]] + [[lm.x, lm.y] for lm in arena.landmarks])
+        self._n_rays = self._n_ir + len(self._targets)
+        self._targets_x = np.ascontiguousarray(self._targets[:, 0])
+        self._targets_y = np.ascontiguousarray(self._targets[:, 1])
+        self._planes = box_planes(arena.box_array(walls=True))
+        self._n_tall = len(arena.tall_obstacles)
+        self._ir_range = sp.ir_range
+        diag = math.hypot(arena.size, arena.size)
+        self._cam_range = sp.camera_range if sp.camera_range < diag else None
+        sig_b = math.radians(sp.bearing_noise_deg)
+        self._noisy = sp.ir_noise_sigma > 0.0 or sig_b > 0.0
+        self._sigmas = np.concatenate([np.full(self._n_ir, sp.ir_noise_sigma),
+                                       np.full(len(self._targets), sig_b)])
+
+        self._wander = WanderPolicy(params.wander, self._ir_angles, rng)
+        self._tick = 0
+        start = arena.starts[0]
+        self._set_pose(start.x, start.y, start.heading)
+        self._obs: Observation | None = None
+        self._obs_tick = -1
+
+    # -------------------------------------------------------------------- state accessors
+    @property
+    def pose(self) -> np.ndarray:
+        """Ground-truth ``(x, y, theta)`` [m, m, rad], theta in (-pi, pi], shape (3,)."""
+        return np.array((self._x, self._y, self._th))
+
+    @property
+    def t(self) -> float:
+        """Time since reset [s]."""
+        return self._k * self._dt
+
+    @property
+    def steps(self) -> int:
+        """Steps since reset."""
+        return self._k
+
+    @property
+    def wheels(self) -> np.ndarray:
+        """Executed ``(v_left, v_right)`` of the last step [m/s], shape (2,)."""
+        return self._wheels.copy()
+
+    @property
+    def done(self) -> bool:
+        """The episode is over: call :meth:`reset`."""
+        return self._done
+
+    @property
+    def touching(self) -> bool:
+        """The robot is in contact with a wall or an obstacle."""
+        return self._touching
+
+    @property
+    def gap(self) -> float:
+        """Free distance from the body surface to the nearest wall/obstacle [m] (>= 0)."""
+        return disc_gap(self._x, self._y, self._r, self._boxes, self._half)
+
+    @property
+    def n_ir(self) -> int:
+        """Number of IR beams."""
+        return self._n_ir
+
+    # -------------------------------------------------------------------------- episode
+    def reset(self, start: str | ArrayLike = 'A', heading: float | None = None) -> Observation:
+        """Start a new episode.
+
+        Parameters
+        ----------
+        start : str or array_like, shape (3,)
+            A start name of the arena file (heading from the file); ``'random'``: a uniformly
+            random free position (not in the goal) and heading; ``'wander'``: run the wander
+            policy from the current pose for ``episode.wander_time`` s (longer if it ends in
+            the goal) and start where it stops; or an explicit free pose ``(x, y, theta)``.
+        heading : float, optional
+            Overrides the start heading [rad].
+
+        Returns
+        -------
+        Observation
+            At t = 0.
+
+        Raises
+        ------
+        ValueError
+            Unknown start name, or an explicit pose that overlaps a wall/obstacle.
+        """
+        if isinstance(start, str):
+            if start == 'random':
+                x, y, th = self._random_pose()
+            elif start == 'wander':
+                x, y, th = self._run_wander()
+            else:
+                try:
+                    s = self.arena.start(start)
+                except KeyError as exc:
+                    raise ValueError(f"{exc.args[0]}, 'random', 'wander'") from None
+                x, y, th = s.x, s.y, s.heading
+        else:
+            x, y, th = (float(v) for v in np.asarray(start, dtype=np.float64).reshape(3))
+            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
+                raise ValueError(f'start pose must be finite, got {start!r}')
+            if disc_gap(x, y, self._r, self._boxes, self._half) < 0.0:
+                raise ValueError(f'start pose ({x}, {y}) overlaps a wall or an obstacle')
+        if heading is not None:
+            th = float(heading)
+            if not math.isfinite(th):
+                raise ValueError(f'heading must be finite, got {heading!r}')
+        self._set_pose(x, y, th)
+        return self.observe()
+
+    def _set_pose(self, x: float, y: float, th: float) -> None:
+        self._x, self._y, self._th = float(x), float(y), wrap_angle(float(th))
+        self._k = 0
+        self._done = False
+        self._wheels = np.zeros(2)
+        self._touching = disc_gap(x, y, self._r, self._boxes, self._half) < self._tol
+        self._tick += 1
+
+    def _in_goal(self, x: float, y: float) -> bool:
+        dx, dy = x - self._dest[0], y - self._dest[1]
+        return dx * dx + dy * dy <= self._goal_r2
+
+    def _random_pose(self) -> tuple[float, float, float]:
+        lim = self._half - self._r
+        for _ in range(_MAX_TRIES):
+            x, y = self._rng.uniform(-lim, lim, size=2)
+            th = self._rng.uniform(-math.pi, math.pi)
+            if (disc_gap(x, y, self._r, self._boxes, self._half) >= self._tol
+                    and not self._in_goal(x, y)):
+                return float(x), float(y), float(th)
+        raise RuntimeError(f'no free random start found in {_MAX_TRIES} tries')
+
+    def _run_wander(self) -> tuple[float, float, float]:
+        n = round(self.params.episode.wander_time / self._dt)
+        self._wander.reset()
+        self._k = 0
+        k = 0
+        # keep wandering while in the goal (the episode would be over at once); bounded
+        while k < n or (self._in_goal(self._x, self._y) and k < 10 * n + 1000):
+            obs = self.observe()
+            self._move(clamp_wheels(self._wander.act(obs), self._vmax))
+            self._tick += 1
+            k += 1
+        return self._x, self._y, self._th
+
+    # ---------------------------------------------------------------------------- motion
+    def _move(self, u: np.ndarray) -> None:
+        """Advance one dt with clamped wheels ``u`` (contact model of the module docstring)."""
+        vl, vr = float(u[0]), float(u[1])
+        v, w = wheels_to_twist(vl, vr, self._b)
+        x0, y0, th0, dt, r = self._x, self._y, self._th, self._dt, self._r
+        boxes, half = self._boxes, self._half
+        x, y, th = integrate_arc(x0, y0, th0, v, w, dt)
+        gap = disc_gap(x, y, r, boxes, half)
+        blocked = gap < 0.0
+        if blocked:
+            # largest fraction s of the forward speed whose end pose is free (s = 0 is: the
+            # current pose is free and turning in place cannot overlap, the body is a disc)
+            lo, hi = 0.0, 1.0
+            for _ in range(_N_BISECT):
+                mid = 0.5 * (lo + hi)
+                xm, ym, _ = integrate_arc(x0, y0, th0, mid * v, w, dt)
+                if disc_gap(xm, ym, r, boxes, half) >= 0.0:
+                    lo = mid
+                else:
+                    hi = mid
+            v *= lo
+            x, y, th = integrate_arc(x0, y0, th0, v, w, dt)
+            gap = disc_gap(x, y, r, boxes, half)
+            vl, vr = twist_to_wheels(v, w, self._b)
+        self._x, self._y, self._th = x, y, wrap_angle(th)
+        self._wheels = np.array((vl, vr))
+        self._touching = blocked or gap < self._tol
+
+    def step(self, u: ArrayLike, observe: bool = False) -> StepResult:
+        """Hold the wheel command ``u`` for one ``episode.dt``.
+
+        Parameters
+        ----------
+        u : array_like, shape (2,)
+            ``(v_left, v_right)`` [m/s]; clamped by :func:`clamp_wheels` (NaN/inf -> 0,
+            +-v_wheel_max), so no command can move the robot more than v_wheel_max * dt.
+        observe : bool
+            Compute the observation now (else on first access of ``result.obs``).
+
+        Returns
+        -------
+        StepResult
+
+        Raises
+        ------
+        RuntimeError
+            If the episode is over (call :meth:`reset`).
+        """
+        if self._done:
+            raise RuntimeError('the episode is over (reached or timeout): call reset()')
+        before = self._touching
+        self._move(clamp_wheels(u, self._vmax))
+        self._k += 1
+        self._tick += 1
+        ep = self.params.episode
+        collision = self._touching and not before
+        reached = self._in_goal(self._x, self._y)
+        timeout = (not reached) and self._k >= self._k_max
+        reward = 0.0
+        if collision:
+            reward += ep.reward_collision
+        if reached:
+            reward += ep.reward_goal
+        self._done = reached or timeout
+        return StepResult(self._k * self._dt, reward, collision, reached, timeout, self,
+                          self._tick, self.observe() if observe else None)
+
+    # --------------------------------------------------------------------------- sensing
+    def observe(self) -> Observation:
+        """The full sensor model at the current time (cached until the next step/reset).
+
+        Returns
+        -------
+        Observation
+        """
+        if self._obs_tick == self._tick:
+            return self._obs
+        x, y, th = self._x, self._y, self._th
+        n = self._n_ir
+        # ray directions, x row then y row: unit beam vectors, then (target - robot) vectors
+        d = np.empty((2, self._n_rays))
+        a = self._ir_angles + th
+        np.cos(a, out=d[0, :n])
+        np.sin(a, out=d[1, :n])
+        np.subtract(self._targets_x, x, out=d[0, n:])
+        np.subtract(self._targets_y, y, out=d[1, n:])
+        t_near, t_far = slab_planes(x, y, d, self._planes)
+        if self._noisy:
+            noise = self._noise_rng.standard_normal(self._n_rays) * self._sigmas
+
+        # first hit of every ray: the robot centre is outside every box, so the line meets a
+        # box ahead iff 0 <= t_near <= t_far (t_near < 0 <= t_far cannot happen)
+        hit = np.where((t_near <= t_far) & (t_near >= 0.0), t_near, np.inf)     # (R, B)
+
+        # IR: beams start on the body surface, hence the reading is t_hit - radius
+        ir = hit[:n].min(axis=1)
+        ir -= self._r
+        if self._noisy:
+            ir += noise[:n]
+        np.maximum(ir, 0.0, out=ir)
+        np.minimum(ir, self._ir_range, out=ir)
+
+        # camera: bearing = direction of (target - robot) minus heading; hidden when the
+        # segment robot -> target (t in [0, 1]) enters a tall obstacle (the first columns),
+        # or when the target is out of range
+        dx, dy = d[0, n:], d[1, n:]
+        bearing = np.arctan2(dy, dx)
+        bearing -= th
+        if self._noisy:
+            bearing += noise[n:]
+        bearing = wrap_angles(bearing)
+        if self._n_tall:
+            hidden = hit[n:, :self._n_tall].min(axis=1) <= 1.0
+            if self._cam_range is not None:
+                hidden |= np.hypot(dx, dy) > self._cam_range
+            bearing[hidden] = np.nan
+        elif self._cam_range is not None:
+            bearing[np.hypot(dx, dy) > self._cam_range] = np.nan
+        lm = bearing[1:]
+        ir.flags.writeable = False
+        lm.flags.writeable = False
+        wheels = self._wheels.copy()
+        wheels.flags.writeable = False
+        obs = Observation(self._k * self._dt, ir, float(bearing[0]), lm, wheels)
+        self._obs, self._obs_tick = obs, self._tick
+        return obs

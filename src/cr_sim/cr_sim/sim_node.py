@@ -1,0 +1,218 @@
+"""``ros2 run cr_sim sim``: the Cyber Rodent simulator as a ROS 2 node.
+
+Publishes the robot interface (see :mod:`cr_sim.conversions` and the README's topic table),
+ground-truth ``odom``, ``markers`` and ``/clock``; subscribes to ``cmd_vel``; offers the
+``reset`` service (std_srvs/Trigger). The core (:class:`cr_sim.core.sim.Simulator`) steps at
+``episode.dt`` of sim time; the node paces it at ``node.speed_factor`` times real time
+(0 = as fast as possible). Timers of nodes running with ``use_sim_time`` skip rather than replay
+missed periods (DESIGN.md §8), so one tick of sim time (50 ms) must stay below the shortest
+module period (250 ms): it does by construction.
+
+Safety: every command goes through :func:`cr_sim.core.robot.clamp_wheels` (NaN/inf -> 0,
+clipped to the wheel limit); a command older than ``node.watchdog`` seconds of sim time is
+replaced by a stop.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
+
+from cr_sim import conversions as conv
+from cr_sim.core.arena import load_arena
+from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from cr_sim.core.sim import SimParams, Simulator
+from cr_sim.core.starts import draw_start
+from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
+
+START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
+
+
+@dataclass(frozen=True)
+class SimNodeParams:
+    """ROS-side settings of the simulator node (``config/sim.yaml``, section ``node``)."""
+
+    arena_file: str = param(doc="arena description; '' = config/arena.yaml")
+    speed_factor: float = param(0.0, 1000.0, doc='sim time / wall time; 0 = as fast as possible')
+    cmd_vel_stamped: bool = param(doc='cmd_vel is TwistStamped (true) or Twist (false)')
+    watchdog: float = param(0.05, 60.0, doc='stop if no cmd_vel for this long (s, sim time)')
+    start: str = param(choices=START_CHOICES, doc='where episodes start')
+    auto_reset: bool = param(doc='start a new episode when one ends')
+    seed: int = param(0, 2**31 - 1, doc='seed of the simulator generator')
+    markers_period: float = param(0.05, 60.0, doc='robot marker period (s, sim time)')
+    map_frame: str = param(doc='fixed frame of odom and markers')
+    base_frame: str = param(doc='robot body frame')
+
+
+class SimNode(Node):
+    """Thin glue: parameters -> core; core state -> messages; cmd_vel -> core."""
+
+    def __init__(self) -> None:
+        super().__init__('sim')
+        defaults = ros_parameters(config_dir() / 'sim.yaml', 'sim')
+        values = declare_from_config(self, defaults)
+        try:
+            self.cfg = build(SimNodeParams, values.pop('node'), where='sim.node')
+            self.params = build(SimParams, values, where='sim')
+            self.arena = load_arena(self.cfg.arena_file or None)
+        except ConfigError as exc:
+            self.get_logger().fatal(str(exc))
+            raise
+        self.sim = Simulator(self.arena, self.params, np.random.default_rng(self.cfg.seed))
+        self.start_rng = np.random.default_rng([self.cfg.seed, 1])
+        self.wheel_base = self.params.robot.wheel_base
+        self.u = np.zeros(2)
+        self.u_time = -np.inf
+        self.episode = 0
+        self._time_offset = 0.0
+        self.episode_return = 0.0
+        self.next_marker_t = 0.0
+
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_clock = self.create_publisher(conv.Clock, '/clock', 10)
+        self.pub_ir = self.create_publisher(conv.LaserScan, 'ir', 10)
+        self.pub_camera = self.create_publisher(conv.JointState, 'camera', 10)
+        self.pub_wheels = self.create_publisher(conv.JointState, 'wheels', 10)
+        self.pub_reward = self.create_publisher(conv.Vector3Stamped, 'reward', 10)
+        self.pub_episode = self.create_publisher(
+            conv.DiagnosticArray, 'episode', QoSProfile(depth=10,
+                                                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.pub_odom = self.create_publisher(conv.Odometry, 'odom', 10)
+        self.pub_arena = self.create_publisher(conv.MarkerArray, 'arena', latched)
+        self.pub_markers = self.create_publisher(conv.MarkerArray, 'markers', 10)
+        cmd_type = conv.TwistStamped if self.cfg.cmd_vel_stamped else conv.Twist
+        self.create_subscription(cmd_type, 'cmd_vel', self._on_cmd, 10)
+        from std_srvs.srv import Trigger
+        self.create_service(Trigger, 'reset', self._on_reset)
+
+        self.pub_arena.publish(conv.arena_markers(
+            self.arena.wall_boxes(), self.arena.short_boxes(), self.arena.tall_boxes(),
+            [(lm.x, lm.y) for lm in self.arena.landmarks],
+            (self.arena.destination.x, self.arena.destination.y,
+             self.arena.destination.goal_radius), self.cfg.map_frame))
+        self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
+        self._start_episode()
+        self.get_logger().info(
+            f'arena {self.cfg.arena_file or "config/arena.yaml"}, dt {self.params.episode.dt} s, '
+            f'speed x{self.cfg.speed_factor or "max"}, cmd_vel '
+            f'{"TwistStamped" if self.cfg.cmd_vel_stamped else "Twist"}')
+
+    @property
+    def dt(self) -> float:
+        return self.params.episode.dt
+
+    def _on_cmd(self, msg) -> None:
+        # Clamped in the core (NaN/inf -> 0, limit): a bad command never reaches the wheels.
+        self.u = conv.wheels_from_cmd(msg, self.wheel_base)
+        self.u_time = self.sim.t
+
+    def _on_reset(self, request, response):
+        self._end_episode('reset')
+        self._start_episode()
+        response.success = True
+        response.message = f'episode {self.episode} started at {self.cfg.start}'
+        return response
+
+    def _start_episode(self) -> None:
+        if self.episode:
+            self._time_offset += self.sim.t  # /clock stays monotonic across episodes
+        start, heading = draw_start(self.cfg.start, self.arena, self.start_rng)
+        self.sim.reset(start=start, heading=heading)
+        self.episode += 1
+        self.episode_return = 0.0
+        self.u[:] = 0.0
+        self.u_time = -np.inf
+        self.pub_episode.publish(conv.episode_msg(
+            'start', self.sim_time, episode=self.episode, start=start,
+            pose=' '.join(f'{p:.3f}' for p in self.sim.pose)))
+        self._publish_state()
+
+    def _end_episode(self, event: str) -> None:
+        self.pub_episode.publish(conv.episode_msg(
+            event, self.sim_time, episode=self.episode, episode_return=self.episode_return,
+            duration=self.sim.t))
+
+    def tick(self) -> None:
+        """Advance the simulator by one tick and publish what the robot senses."""
+        if self.sim.done:  # auto_reset off: hold still until `reset`, sim time goes on
+            self._time_offset += self.dt
+            self.pub_clock.publish(conv.clock_msg(self.sim_time))
+            return
+        u = self.u if self.sim.t - self.u_time <= self.cfg.watchdog else np.zeros(2)
+        res = self.sim.step(u)
+        self.episode_return += res.reward
+        self.pub_reward.publish(conv.reward_msg(res.reward, self.episode_return, self.episode,
+                                                self.sim_time))
+        self._publish_state()
+        if res.done:
+            self._end_episode('reached' if res.reached else 'timeout')
+            if self.cfg.auto_reset:
+                self._start_episode()
+
+    def _publish_state(self) -> None:
+        t = self.sim_time
+        self.pub_clock.publish(conv.clock_msg(t))
+        obs = self.sim.observe()
+        frame = self.cfg.base_frame
+        sensors = self.params.sensors
+        self.pub_ir.publish(conv.ir_msg(obs.ir, np.deg2rad(sensors.ir_angles_deg),
+                                        sensors.ir_range, t, frame))
+        self.pub_camera.publish(conv.bearings_msg(
+            self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame))
+        self.pub_wheels.publish(conv.wheels_msg(obs.wheels, t, frame))
+        self.pub_odom.publish(conv.odom_msg(self.sim.pose, obs.wheels, self.wheel_base, t,
+                                            self.cfg.map_frame, frame))
+        if t >= self.next_marker_t:
+            self.next_marker_t = t + self.cfg.markers_period
+            self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
+                self.sim.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
+
+    @property
+    def sim_time(self) -> float:
+        """Total sim time since the node started (monotonic across episodes)."""
+        return self._time_offset + self.sim.t
+
+
+def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
+    """Pace the simulator at ``speed_factor`` x real time while serving callbacks."""
+    period = node.dt / node.cfg.speed_factor if node.cfg.speed_factor > 0 else 0.0
+    next_wall = time.monotonic()
+    while rclpy.ok():
+        executor.spin_once(timeout_sec=0.0)
+        now = time.monotonic()
+        if now < next_wall:
+            executor.spin_once(timeout_sec=next_wall - now)
+            continue
+        node.tick()
+        next_wall = next_wall + period if period > 0 else now
+        if period > 0 and time.monotonic() - next_wall > 1.0:
+            next_wall = time.monotonic()  # fell far behind: do not try to catch up in a burst
+
+
+def main(args: list[str] | None = None) -> None:
+    print_help_and_exit_if_asked(__doc__, args)
+    rclpy.init(args=args)
+    try:
+        node = SimNode()
+    except ConfigError as exc:
+        print(f'sim: bad parameter: {exc}')
+        rclpy.try_shutdown()
+        raise SystemExit(2) from None
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        run(node, executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,68 @@
+"""Helpers for graph tests: real rclpy in the test process, nodes as separate OS processes."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable
+import subprocess
+import sys
+import time
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, QoSProfile
+
+
+def start_node(module: str, *ros_args: str) -> subprocess.Popen:
+    """``python -m module --ros-args ...`` as a child process (inherits the test DDS env)."""
+    cmd = [sys.executable, '-m', module]
+    if ros_args:
+        cmd += ['--ros-args', *ros_args]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
+    """Interrupt a node process; return what it printed."""
+    if proc.poll() is None:
+        proc.send_signal(2)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    out, _ = proc.communicate()
+    return out or ''
+
+
+class Probe:
+    """A test-side node in its own context that records what arrives on given topics."""
+
+    def __init__(self, name: str = 'probe') -> None:
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.msgs: dict[str, list] = defaultdict(list)
+
+    def listen(self, msg_type, topic: str, latched: bool = False) -> None:
+        qos = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                         else DurabilityPolicy.VOLATILE)
+        self.node.create_subscription(msg_type, topic,
+                                      lambda m, t=topic: self.msgs[t].append(m), qos)
+
+    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.02)
+            if done():
+                return True
+        return False
+
+    def spin_for(self, seconds: float) -> None:
+        self.spin_until(lambda: False, seconds)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
