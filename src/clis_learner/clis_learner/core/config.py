@@ -1,0 +1,106 @@
+"""All CLIS parameters, read from ``config/clis.yaml`` (``/**: ros__parameters:``).
+
+Sections: ``common`` (gamma, base tick, beta, epsilon, speed limit), ``innate``, ``view``,
+``place`` (:mod:`clis_modules.core.modules`), ``arbiter`` (:mod:`clis_modules.core.arbiter`),
+``learner`` (here). Every value is range-checked at load; a bad one raises
+:class:`~cr_sim.core.params.ConfigError` naming the file and the dotted key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+import copy
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from clis_modules.core.arbiter import ArbiterParams
+from clis_modules.core.modules import CommonParams, InnateParams, PlaceParams, ViewParams
+from cr_sim.core.params import (
+    ConfigError,
+    as_dict,
+    build,
+    config_dir,
+    dataclass,
+    param,
+    ros_parameters,
+    set_dotted,
+)
+
+from clis_learner.core.corrections import CORRECTIONS
+from clis_learner.core.resample import RESAMPLE_METHODS
+
+__all__ = ['LearnerParams', 'ClisParams', 'load_clis_params', 'params_hash', 'CLIS_NODE']
+
+#: Node key of the parameter file: every node reads the same CLIS parameters.
+CLIS_NODE = '/**'
+
+
+@dataclass(frozen=True)
+class LearnerParams:
+    """Learning from one episode (``clis.yaml`` section ``learner``)."""
+
+    resample: str = param(choices=RESAMPLE_METHODS,
+                          doc='actions onto each module grid: cubic spline or zero-order hold')
+    correction: str = param(choices=tuple(CORRECTIONS), doc='importance-sampling correction')
+    lambda_: float = param(0.0, 1.0, doc='trace decay lambda_i of TD(lambda) (8)')
+    policy_step: str = param(choices=('raw', 'scaled'),
+                             doc='(9) on the raw gradient, or scaled by the inverse Fisher '
+                                 'information of the Gaussian (10)')
+
+
+@dataclass(frozen=True)
+class ClisParams:
+    """Everything in ``clis.yaml``."""
+
+    common: CommonParams = param(doc='section common')
+    innate: InnateParams = param(doc='section innate')
+    view: ViewParams = param(doc='section view')
+    place: PlaceParams = param(doc='section place')
+    arbiter: ArbiterParams = param(doc='section arbiter')
+    learner: LearnerParams = param(doc='section learner')
+
+
+def _flatten(d: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(_flatten(v, f'{prefix}{k}.'))
+        else:
+            out[f'{prefix}{k}'] = v
+    return out
+
+
+def load_clis_params(path: str | os.PathLike | None = None,
+                     overrides: Mapping[str, Any] | None = None) -> ClisParams:
+    """Read ``/**: ros__parameters:`` of a CLIS parameter file into :class:`ClisParams`.
+
+    Parameters
+    ----------
+    path : path-like, optional
+        Default ``config_dir() / 'clis.yaml'``.
+    overrides : Mapping, optional
+        Values replacing the file's, nested (``{'common': {'beta': 200.0}}``) and/or dotted
+        (``{'common.beta': 200.0}``). Every key must exist in the file.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the dotted key: missing, unknown, wrong type or out of range.
+    """
+    p = Path(path) if path is not None else config_dir() / 'clis.yaml'
+    data = copy.deepcopy(ros_parameters(p, node=CLIS_NODE))
+    try:
+        for key, value in _flatten(overrides or {}).items():
+            set_dotted(data, key, value)
+        return build(ClisParams, data)
+    except ConfigError as exc:
+        raise ConfigError(f'{p}: {exc}') from None
+
+
+def params_hash(params: Any) -> str:
+    """Short SHA-256 of a parameter dataclass (canonical JSON): identifies a configuration."""
+    text = json.dumps(as_dict(params), sort_keys=True, separators=(',', ':'))
+    return hashlib.sha256(text.encode('utf-8')).hexdigest()[:16]

@@ -1,0 +1,89 @@
+"""Importance-sampling corrections: the per-step ratio rho of (6), pluggable.
+
+Paper (6): ``rho_i = pi_i(x, u) / pi_i'(x, u)`` corrects an episode of the behaviour policy
+``pi_i'`` for the target ``pi_i``; its product over the episode may diverge, so (7) truncates::
+
+    rho~_i = (pi_i + epsilon) / (pi_i' + epsilon),   epsilon = 0.2      (7)
+
+A correction is any object with a ``name`` and ``ratio(pi_target, pi_behaviour) -> rho``
+(arrays of densities in, array of ratios out). Add a variant by writing such a class and
+registering a factory in :data:`CORRECTIONS`; ``learner.correction`` in ``clis.yaml`` picks one
+by name (its ``choices`` come from this registry).
+
+Whatever the correction, the learner sets ``rho = 1`` exactly on the steps where the target is
+the behaviour module (the ratio of a density to itself), without evaluating any density.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+__all__ = ['Correction', 'TruncatedRatio', 'NoCorrection', 'CORRECTIONS', 'make_correction']
+
+
+class Correction(Protocol):
+    """Per-step importance ratio of a target policy to the behaviour policy."""
+
+    name: str
+
+    def ratio(self, pi_target: ArrayLike, pi_behaviour: ArrayLike) -> np.ndarray:
+        """Ratios ``rho`` (L,) from target and behaviour densities (L,) of the same actions."""
+        ...
+
+
+class TruncatedRatio:
+    """The paper's truncated ratio (7), ``(pi_i + epsilon) / (pi_i' + epsilon)``.
+
+    Parameters
+    ----------
+    epsilon : float
+        >= 0; with 0 this is the plain ratio (6).
+    """
+
+    name = 'paper'
+
+    def __init__(self, epsilon: float) -> None:
+        if not epsilon >= 0.0:
+            raise ValueError(f'epsilon must be >= 0, got {epsilon}')
+        self.epsilon = float(epsilon)
+
+    def ratio(self, pi_target: ArrayLike, pi_behaviour: ArrayLike) -> np.ndarray:
+        """``rho~ = (pi_i + epsilon) / (pi_i' + epsilon)`` elementwise (7)."""
+        eps = self.epsilon
+        # (7) rho~_i = (pi_i + eps) / (pi_i' + eps)
+        return (np.asarray(pi_target, dtype=np.float64) + eps) / (
+            np.asarray(pi_behaviour, dtype=np.float64) + eps)
+
+
+class NoCorrection:
+    """``rho = 1``: every episode treated as on-policy (an ablation, not the paper)."""
+
+    name = 'none'
+
+    def __init__(self, epsilon: float = 0.0) -> None:
+        del epsilon
+
+    def ratio(self, pi_target: ArrayLike, pi_behaviour: ArrayLike) -> np.ndarray:
+        """Ones, shape of ``pi_target``."""
+        return np.ones(np.shape(pi_target))
+
+
+#: Registry: name -> factory taking ``epsilon`` (``common.epsilon``).
+CORRECTIONS: dict[str, Callable[[float], Correction]] = {
+    'paper': TruncatedRatio,
+    'none': NoCorrection,
+}
+
+
+def make_correction(name: str, epsilon: float) -> Correction:
+    """The correction registered as ``name``, built with ``epsilon``."""
+    try:
+        factory = CORRECTIONS[name]
+    except KeyError:
+        raise ValueError(f'unknown correction {name!r}: choose from '
+                         f'{", ".join(CORRECTIONS)}') from None
+    return factory(epsilon)

@@ -1,0 +1,213 @@
+"""Cooperative learning: every module learns from every episode (paper II-B..E).
+
+:meth:`Learner.learn` replays one :class:`~clis_learner.core.memory.EpisodeMemory` for each
+module i (the *target*), whichever module acted (the *behaviour* i'):
+
+1. module i's grid: its own decision times ``t_l`` and features ``b_i(x_l)``;
+2. the executed actions resampled onto that grid, ``u_l`` (cubic spline or zero-order hold,
+   :mod:`~clis_learner.core.resample`); rewards summed per interval ``[t_l, t_{l+1})``;
+3. the ratio (7) ``rho_l = (pi_i(x_l, u_l) + eps) / (pi_i'(x'_l, u_l) + eps)``, where ``i'`` is
+   the module whose command was in force at ``t_l`` and ``x'_l`` its state at its latest
+   decision ``<= t_l``; ``rho_l = 1`` exactly (no density evaluated) when ``i' = i``;
+4. TD(lambda) with IS (8) on ``w_i`` for every module (innate too);
+5. the policy gradient with IS (9) on ``W_i`` (and ``sigma_i`` if ``learn_sigma``) for the
+   learned modules.
+
+All densities of step 3 use the parameters the episode was played with: every ratio is computed
+before any module is updated, so the order of the modules does not matter. The result depends
+only on the memory and the parameters (no randomness).
+
+Policy step (``learner.policy_step``): ``raw`` applies (9) literally to the gradient of (10) in
+m/s, whose size grows as ``v_max / sigma^2``; ``scaled`` (default) multiplies the W gradient by
+``sigma^2 / v_max^2`` and the sigma gradient by ``sigma^2 / (2 d)``, the inverse Fisher
+information of the Gaussian (10) in its mean (per unit feature) and in sigma, so that alpha is a
+step in units of the speed limit whatever sigma and the period are (DESIGN Sec. 9: the paper's
+alpha = 0.1 on the raw gradient was unstable).
+
+Diagnostics (one dict per module, all floats, see :data:`DIAGNOSTIC_KEYS`):
+
+==============  ==========================================================================
+n_steps         L, decisions of the module in the episode
+on_policy       share of steps where the module itself acted
+rho_mean        mean of rho_l
+c_final         c after the last step (importance product of the whole episode)
+c_min, c_median min and median of c_l over the steps
+ess             (sum_l c_l)^2 / sum_l c_l^2, effective sample size of the steps' weights
+v_start         V_i(x_0) before the update
+ret             sum_l gamma_i^l r_l, the discounted return on module i's grid
+delta_abs_mean  mean |delta_l| of (8)
+grad_norm       Frobenius norm of the applied W direction, sum_k G_k dln pi_k/dW (0 if fixed)
+sigma           sigma_i after the update
+diverged        1 if the update produced non-finite parameters (then it is not applied)
+==============  ==========================================================================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+import math
+
+from clis_modules.core.modules import ModuleCore
+from clis_modules.core.policy import ACTION_DIM
+import numpy as np
+
+from clis_learner.core.config import ClisParams
+from clis_learner.core.corrections import make_correction
+from clis_learner.core.memory import EpisodeMemory
+from clis_learner.core.resample import latest_index, resample_actions, sum_rewards
+from clis_learner.core.updates import pg_weights, td_lambda_is
+
+__all__ = ['DIAGNOSTIC_KEYS', 'Replay', 'Learner']
+
+#: Keys of each module's diagnostics, in a stable order (CSV columns).
+DIAGNOSTIC_KEYS = ('n_steps', 'on_policy', 'rho_mean', 'c_final', 'c_min', 'c_median', 'ess',
+                   'v_start', 'ret', 'delta_abs_mean', 'grad_norm', 'sigma', 'diverged')
+
+
+@dataclass(frozen=True)
+class Replay:
+    """Module i's view of one episode (steps 1-3 of the module docstring).
+
+    Attributes
+    ----------
+    t : np.ndarray, shape (L,)
+        Module i's decision times [s].
+    B : np.ndarray, shape (L, n)
+        Its features ``b_i(x_l)``.
+    U : np.ndarray, shape (L, 2)
+        The executed actions resampled at ``t`` [m/s].
+    rho : np.ndarray, shape (L,)
+        Ratios (7); exactly 1 where ``on``.
+    r : np.ndarray, shape (L,)
+        Rewards summed over ``[t_l, t_{l+1})`` (the last interval up to the end).
+    on : np.ndarray of bool, shape (L,)
+        Whether module i itself was acting at ``t_l``.
+    """
+
+    t: np.ndarray
+    B: np.ndarray
+    U: np.ndarray
+    rho: np.ndarray
+    r: np.ndarray
+    on: np.ndarray
+
+
+class Learner:
+    """Learns every module from one episode (module docstring).
+
+    Parameters
+    ----------
+    modules : sequence of ModuleCore
+        The modules of the condition (updated in place by :meth:`learn`).
+    params : ClisParams
+        Reads ``learner`` and ``common.epsilon``.
+    """
+
+    def __init__(self, modules: Sequence[ModuleCore], params: ClisParams) -> None:
+        self.modules = list(modules)
+        self.by_name = {m.name: m for m in self.modules}
+        self.params = params.learner
+        self.correction = make_correction(self.params.correction, params.common.epsilon)
+
+    def learn(self, memory: EpisodeMemory, update: bool = True) -> dict[str, dict[str, float]]:
+        """Replay one ended episode for every module; apply (8) and (9) unless ``update`` is
+        False (evaluation: diagnostics only).
+
+        Returns
+        -------
+        dict
+            ``{module name: {key: float}}`` with the keys of :data:`DIAGNOSTIC_KEYS`.
+        """
+        if not memory.ended:
+            raise RuntimeError('learn() needs an ended episode: call memory.end() first')
+        replays = {m.name: self.replay(m, memory) for m in self.modules}    # before any update
+        return {m.name: self._learn_module(m, replays[m.name], update) for m in self.modules}
+
+    # ------------------------------------------------------------------ step 1-3
+
+    def replay(self, m: ModuleCore, memory: EpisodeMemory) -> Replay | None:
+        """Module ``m``'s view of the episode with the current parameters (``None`` if it never
+        decided before the end or nothing was executed)."""
+        t_i, B = memory.decisions(m.name)  # noqa: N806
+        t_a, u_a, who_a = memory.actions()
+        if B is None or len(t_a) == 0:
+            return None
+        U = resample_actions(t_a, u_a, t_i, self.params.resample)  # noqa: N806
+        beh = who_a[latest_index(t_a, t_i)]                 # behaviour i' at each t_l
+        on = beh == memory.index(m.name)
+        rho = np.ones(len(t_i))
+        off = ~on
+        if off.any():
+            pi_target = m.policy.density_batch(B[off], U[off])
+            pi_behaviour = np.empty(int(off.sum()))
+            for j in np.unique(beh[off]):
+                name = memory.module_names[j]
+                if name not in self.by_name:
+                    raise KeyError(f"behaviour module {name!r} is not one of the learner's")
+                t_j, B_j = memory.decisions(name)  # noqa: N806
+                if B_j is None:
+                    raise ValueError(f'module {name!r} acted but never recorded a decision')
+                sel = beh[off] == j
+                k = latest_index(t_j, t_i[off][sel])        # its latest decision <= t_l
+                pi_behaviour[sel] = self.by_name[name].policy.density_batch(
+                    B_j[k], U[off][sel])
+            # (7) rho~ = (pi_i + eps) / (pi_i' + eps); rho = 1 exactly where i' = i
+            rho[off] = self.correction.ratio(pi_target, pi_behaviour)
+        r = sum_rewards(*memory.rewards(), t_i)
+        return Replay(t_i, B, U, rho, r, on)
+
+    # ------------------------------------------------------------------ step 4-5
+
+    def _learn_module(self, m: ModuleCore, rp: Replay | None,
+                      update: bool) -> dict[str, float]:
+        if rp is None:
+            out = dict.fromkeys(DIAGNOSTIC_KEYS, math.nan)
+            out.update(n_steps=0.0, grad_norm=0.0, sigma=m.sigma, diverged=0.0)
+            return out
+        n_steps = len(rp.r)
+        v_start = m.value(rp.B[0])
+        # (8) TD(lambda) with importance sampling
+        w_new, delta, c = td_lambda_is(m.w, rp.B, rp.r, rp.rho, m.gamma, self.params.lambda_,
+                                       m.value_params.alpha)
+        grad_norm = 0.0
+        W_new, sigma_new = m.W, m.sigma  # noqa: N806
+        if m.learned:
+            pp = m.policy_params
+            # (9) sum over the episode of gamma_i^t r c e, e = accumulated d ln pi / d W
+            d_w, d_sigma = m.policy.weighted_scores(rp.B, rp.U, pg_weights(rp.r, c, m.gamma))
+            if self.params.policy_step == 'scaled':
+                d_w *= m.sigma ** 2 / m.v_max ** 2
+                d_sigma *= m.sigma ** 2 / (2 * ACTION_DIM)
+            grad_norm = float(np.linalg.norm(d_w))
+            # (9) W_i <- W_i + alpha_i gamma_i^t r c_i e_i
+            W_new = m.W + pp.alpha * d_w  # noqa: N806
+            if pp.learn_sigma:
+                sigma_new = min(max(m.sigma + pp.alpha_sigma * d_sigma, pp.sigma_min),
+                                pp.sigma_max)
+        diverged = not (np.all(np.isfinite(w_new)) and np.all(np.isfinite(W_new))
+                        and math.isfinite(sigma_new))
+        if update and not diverged:
+            m.w = w_new
+            if m.learned:
+                m.W = W_new
+                m.sigma = sigma_new
+        with np.errstate(over='ignore', invalid='ignore'):
+            s1, s2 = float(c.sum()), float(np.sum(c * c))
+            ess = s1 * s1 / s2 if s2 > 0.0 and math.isfinite(s1 * s1 / s2) else 0.0
+        return {
+            'n_steps': float(n_steps),
+            'on_policy': float(np.mean(rp.on)),
+            'rho_mean': float(np.mean(rp.rho)),
+            'c_final': float(c[-1]),
+            'c_min': float(c.min()),
+            'c_median': float(np.median(c)),
+            'ess': ess,
+            'v_start': v_start,
+            'ret': float(np.sum(m.gamma ** np.arange(n_steps) * rp.r)),
+            'delta_abs_mean': float(np.mean(np.abs(delta))),
+            'grad_norm': grad_norm,
+            'sigma': m.sigma,
+            'diverged': float(diverged),
+        }
+

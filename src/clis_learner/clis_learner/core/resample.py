@@ -1,0 +1,109 @@
+"""Rate conversion between the behaviour module's and each module's decision grid (paper II-E).
+
+"The actual tuple of (x, u, r) is obtained every tau_i' steps while the state for M_i is
+obtained every tau_i steps. Therefore, we have to resample the data points. We use cubic spline
+interpolation to estimate them."
+
+* :func:`resample_actions` -- the executed actions (change points every ``tau_i'``) at module
+  i's decision times ``l tau_i``: ``'spline'`` (the paper: :class:`scipy.interpolate.CubicSpline`,
+  not-a-knot, through the change points) or ``'zoh'`` (zero-order hold: the command in force,
+  which is what the robot actually executed -- it is piecewise constant between decisions).
+  A query that coincides with a knot returns that knot exactly (so equal grids, the Sync
+  condition, give the identity on either method); queries after the last knot hold the last
+  command (it stays in force until the end; a spline would extrapolate); queries before the
+  first knot take the first command.
+* :func:`sum_rewards` -- the reward of each interval ``[t_l, t_{l+1})`` of module i's grid, the
+  last one ``[t_L, end]``: ``r(t + tau_i)`` of (8) and (9). Rewards before ``t_0`` go to the
+  first interval, so the total is always preserved.
+* :func:`latest_index` -- index of the latest grid time ``<= t`` (the behaviour's decision in
+  force, whose features give ``pi_i'`` in (7)).
+
+Times are compared with the tolerance :data:`~clis_learner.core.memory.TIME_TOL`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.interpolate import CubicSpline
+
+from clis_learner.core.memory import TIME_TOL
+
+__all__ = ['RESAMPLE_METHODS', 'latest_index', 'resample_actions', 'sum_rewards']
+
+#: Resampling methods of :func:`resample_actions`.
+RESAMPLE_METHODS = ('spline', 'zoh')
+
+
+def latest_index(t_grid: ArrayLike, t: ArrayLike) -> np.ndarray:
+    """Index of the latest ``t_grid`` entry ``<= t`` (within the tolerance), clipped to >= 0.
+
+    Parameters
+    ----------
+    t_grid : array_like, shape (K,)
+        Increasing times, K >= 1.
+    t : array_like, shape (L,)
+
+    Returns
+    -------
+    np.ndarray of int, shape (L,)
+    """
+    idx = np.searchsorted(np.asarray(t_grid), np.asarray(t) + TIME_TOL, side='right') - 1
+    return np.maximum(idx, 0)
+
+
+def resample_actions(t_knots: ArrayLike, u_knots: ArrayLike, t_query: ArrayLike,
+                     method: str) -> np.ndarray:
+    """Actions at the query times (module docstring).
+
+    Parameters
+    ----------
+    t_knots : array_like, shape (K,)
+        Times of the action change points, increasing, K >= 1.
+    u_knots : array_like, shape (K, d)
+        Actions from each change point on.
+    t_query : array_like, shape (L,)
+        Module i's decision times.
+    method : {'spline', 'zoh'}
+
+    Returns
+    -------
+    np.ndarray, shape (L, d)
+    """
+    tk = np.asarray(t_knots, dtype=np.float64)
+    uk = np.asarray(u_knots, dtype=np.float64).reshape(len(tk), -1)
+    tq = np.asarray(t_query, dtype=np.float64)
+    if method not in RESAMPLE_METHODS:
+        raise ValueError(f'unknown resampling method {method!r}: {RESAMPLE_METHODS}')
+    if len(tk) == 0:
+        raise ValueError('no action to resample')
+    idx = latest_index(tk, tq)
+    out = uk[idx].copy()                                   # zero-order hold
+    if method == 'spline' and len(tk) >= 2:
+        on_knot = np.abs(tq - tk[idx]) <= TIME_TOL
+        inside = (tq > tk[0]) & (tq < tk[-1]) & ~on_knot
+        if inside.any():
+            out[inside] = CubicSpline(tk, uk, axis=0)(tq[inside])
+    return out
+
+
+def sum_rewards(t_rewards: ArrayLike, rewards: ArrayLike, t_grid: ArrayLike) -> np.ndarray:
+    """Reward of each interval ``[t_l, t_{l+1})`` of the grid (module docstring).
+
+    Parameters
+    ----------
+    t_rewards : array_like, shape (R,)
+        Reward times (start of the simulator step that earned it).
+    rewards : array_like, shape (R,)
+    t_grid : array_like, shape (L,)
+        Module i's decision times, increasing, L >= 1.
+
+    Returns
+    -------
+    np.ndarray, shape (L,)
+        Interval sums; ``sum`` equals ``sum(rewards)``.
+    """
+    t_grid = np.asarray(t_grid, dtype=np.float64)
+    idx = latest_index(t_grid, t_rewards)
+    return np.bincount(idx, weights=np.asarray(rewards, dtype=np.float64),
+                       minlength=len(t_grid)).astype(np.float64)

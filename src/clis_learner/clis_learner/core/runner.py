@@ -1,0 +1,360 @@
+"""Headless runner: a discrete-event loop that drives the simulator, the modules, the arbiter and
+the learner at the simulator tick, as fast as the CPU allows, reproducibly per seed.
+
+Time (DESIGN.md §6): the simulator advances in ticks of ``episode.dt`` (50 ms). Module ``i``
+decides at every tick ``k`` with ``k mod n_i = 0``, ``n_i = tau_i / dt`` (5, 10, 24 ticks for
+250/500/1200 ms in **Async**; all 24 in **Sync**). At a decision the module reads the sensors
+of that instant, computes its features ``b_i(x)`` and proposes ``u ~ pi_i(x, .)`` (10), as a
+module node does on its timer. The robot executes the proposal of the selected module, clipped
+to that module's speed limit ``v_max,i = min(1.3, d_react / tau_i)`` (DESIGN.md §3); the
+proposal itself (not clipped) is what the learner's densities see.
+
+Selection (3): ``arbiter.selection = episode`` draws the acting module once, from the values of
+the start state (what (4)-(6) assume); ``decision`` redraws at every tick at which any module
+decides.
+
+Localization of the place module: the executed wheel velocities of every tick are composed into
+one displacement in the robot frame (odometry), applied at the module's next decision by the
+motion update, followed by the landmark update (paper III-D).
+
+After each learning episode the learner trains every module from it (eqs. 6-9, 11).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+import json
+import math
+import os
+from pathlib import Path
+import re
+import time
+from typing import Any
+
+from clis_modules.core.arbiter import Arbiter, selection_probs
+from clis_modules.core.modules import CONDITIONS, ModuleCore, make_modules
+from cr_sim.core.arena import Arena, load_arena
+from cr_sim.core.robot import integrate_arc, wheels_to_twist
+from cr_sim.core.sim import SimParams, Simulator, load_sim_params
+from cr_sim.core.starts import draw_start
+import numpy as np
+
+from clis_learner.core.checkpoint import save_checkpoint
+from clis_learner.core.config import ClisParams, load_clis_params, params_hash
+from clis_learner.core.learner import Learner
+from clis_learner.core.memory import EpisodeMemory
+
+__all__ = ['CONDITIONS', 'Agent', 'run_episode', 'place_selection_map', 'JobSpec', 'JobResult',
+           'run_job']
+
+#: Per-module diagnostics of the learner copied into each episode row.
+ROW_DIAGNOSTICS = ('c_final', 'c_median', 'ess', 'rho_mean', 'delta_abs_mean', 'grad_norm',
+                   'n_steps')
+
+
+class Agent:
+    """The CLIS modules of one condition, with their arbiter and learner.
+
+    Parameters
+    ----------
+    params : ClisParams
+    condition : str
+        ``innate``, ``view``, ``place``, ``sync`` or ``async``.
+    arena : Arena
+        Landmarks and obstacles for the place module's localization grid.
+    rng : np.random.Generator
+        Draws the selections and the modules' actions.
+    """
+
+    def __init__(self, params: ClisParams, condition: str, arena: Arena,
+                 rng: np.random.Generator) -> None:
+        self.params = params
+        self.condition = condition
+        landmarks = np.array([(lm.x, lm.y) for lm in arena.landmarks], float)
+        self.modules: list[ModuleCore] = make_modules(params, condition, landmarks, arena.half,
+                                                      np.array(arena.box_tuples(), float))
+        self.names = [m.name for m in self.modules]
+        self.gammas = np.array([m.gamma for m in self.modules])
+        self.arbiter = Arbiter(params.arbiter, params.common.beta, rng)
+        self.learner = Learner(self.modules, params)
+        self.memory = EpisodeMemory(self.names)
+        self.rng = rng
+        self.place = next((m for m in self.modules if m.localizer is not None), None)
+
+    def values(self, feats: list[np.ndarray]) -> np.ndarray:
+        """``V_i(x)`` of every module at its latest features, shape (N,)."""
+        return np.array([m.value(b) for m, b in zip(self.modules, feats)])
+
+
+def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
+                learn: bool = True) -> dict[str, Any]:
+    """Run one episode from ``start``; learn from it unless ``learn`` is False.
+
+    Returns
+    -------
+    dict
+        One row: outcome, who acted, selection probabilities and values at the start, and the
+        learner's per-module diagnostics (``{key}_{module}``).
+    """
+    modules, names = agent.modules, agent.names
+    dt = sim.params.episode.dt
+    wheel_base = sim.params.robot.wheel_base
+    every = [max(1, int(round(m.period / dt))) for m in modules]
+    n = len(modules)
+    memory = agent.memory
+    memory.clear()
+    obs = sim.reset(start=start, heading=heading)
+    for m in modules:
+        m.reset()
+    feats: list[np.ndarray] = [np.zeros(0)] * n
+    proposals = np.zeros((n, 2))
+    acted_ticks = np.zeros(n)
+    odo = (0.0, 0.0, 0.0)
+    acting = -1
+    u_exec = np.zeros(2)
+    ret, collisions, k = 0.0, 0, 0
+    p_start = v_start = None
+    while True:
+        t = k * dt
+        due = [i for i in range(n) if k % every[i] == 0]
+        if due:
+            obs = sim.observe()
+            for i in due:
+                m = modules[i]
+                if m.localizer is not None:
+                    if k > 0:
+                        m.localizer.predict(*odo)
+                        odo = (0.0, 0.0, 0.0)
+                    m.localizer.update(obs.landmark_bearings)
+                b = m.features(obs.dest_bearing, obs.d_o, obs.landmark_bearings)
+                feats[i] = b
+                memory.record_decision(m.name, t, b)
+                proposals[i] = m.sample(b, agent.rng)
+            values = agent.values(feats)
+            if k == 0:
+                acting = agent.arbiter.begin_episode(values, agent.gammas)
+                p_start, v_start = agent.arbiter.probs.copy(), values
+            else:
+                acting = agent.arbiter.on_decision(values, agent.gammas)
+            if acting in due or agent.arbiter.mode == 'decision':
+                # (10) the robot executes the acting module's proposal within its speed limit
+                v_max = modules[acting].v_max
+                u_exec = np.clip(proposals[acting], -v_max, v_max)
+                memory.record_action(t, proposals[acting], names[acting])
+        res = sim.step(u_exec)
+        acted_ticks[acting] += 1
+        memory.record_reward(t, res.reward)
+        ret += res.reward
+        collisions += int(res.collision)
+        if agent.place is not None:
+            v, omega = wheels_to_twist(sim.wheels[0], sim.wheels[1], wheel_base)
+            odo = integrate_arc(*odo, v, omega, dt)
+        k += 1
+        if res.done:
+            break
+    memory.end(k * dt, res.reached)
+    diag = agent.learner.learn(memory, update=learn) if learn else {}
+    shares = acted_ticks / max(acted_ticks.sum(), 1)
+    row: dict[str, Any] = {
+        'start': start if isinstance(start, str) else 'pose', 'reached': int(res.reached),
+        'duration': round(k * dt, 6), 'collisions': collisions, 'ret': round(ret, 6),
+        'behaviour': names[int(np.argmax(acted_ticks))]}
+    for i, name in enumerate(names):
+        row[f'share_{name}'] = float(shares[i])
+        row[f'p_{name}'] = float(p_start[i])
+        row[f'v_{name}'] = float(v_start[i])
+        d = diag.get(name)
+        if d is None:
+            continue
+        for key in ROW_DIAGNOSTICS:
+            row[f'{key}_{name}'] = float(d[key])
+        off_policy = not d['on_policy'] and d['n_steps'] > 0
+        row[f'log10c_{name}'] = (math.log10(max(d['c_final'], 1e-300)) if off_policy
+                                 else math.nan)
+    return row
+
+
+def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -> dict | None:
+    """Pr(M_pl | x) of (3) on a grid of positions, heading to the destination (paper Fig. 4).
+
+    Innate and view read the sensors at that pose; the place module's belief is taken as
+    localized on the cell of the pose (the end-of-learning situation the figure shows).
+    Positions where the robot does not fit are NaN.
+
+    Returns
+    -------
+    dict or None
+        ``{'x': (nx,), 'y': (ny,), 'p': (ny, nx)}``; None without a place module or with one
+        module only.
+    """
+    if agent.place is None or len(agent.modules) < 2:
+        return None
+    half = sim.arena.half
+    centres = np.arange(-half + resolution / 2, half, resolution)
+    dest = sim.arena.destination
+    loc = agent.place.localizer
+    i_place = agent.modules.index(agent.place)
+    p_map = np.full((len(centres), len(centres)), np.nan)
+    for iy, y in enumerate(centres):
+        for ix, x in enumerate(centres):
+            heading = math.atan2(dest.y - y, dest.x - x)
+            try:
+                obs = sim.reset(start=(x, y, heading))
+            except ValueError:
+                continue  # the robot does not fit here
+            onehot = np.zeros(loc.shape)
+            onehot[loc.cell_of(x, y, heading)] = 1.0
+            loc.set_belief(onehot)
+            feats = [m.features(obs.dest_bearing, obs.d_o, obs.landmark_bearings)
+                     for m in agent.modules]
+            probs = selection_probs(agent.values(feats), agent.gammas,
+                                    agent.params.common.beta)
+            p_map[iy, ix] = probs[i_place]
+    loc.reset()
+    return {'x': centres.tolist(), 'y': centres.tolist(), 'p': p_map.tolist()}
+
+
+def arena_dict(arena: Arena) -> dict:
+    """What the figures need of the arena (plain JSON)."""
+    def boxes(items):
+        return [[*b.lo, *b.hi] for b in items]
+    d = arena.destination
+    return {'half_size': arena.half, 'short': boxes(arena.short_obstacles),
+            'tall': boxes(arena.tall_obstacles),
+            'landmarks': [[lm.x, lm.y] for lm in arena.landmarks],
+            'destination': [d.x, d.y, d.goal_radius],
+            'starts': {s.name: [s.x, s.y] for s in arena.starts}}
+
+
+@dataclass
+class JobSpec:
+    """One run: a condition (with overrides) and a seed."""
+
+    index: int
+    label: str
+    condition: str
+    overrides: dict
+    sim_overrides: dict
+    seed: int
+    episodes: int
+    eval_episodes: int
+    arena: str | None
+    run_dir: str
+    block: int = 50
+    train_start: str = 'starts'
+
+    def load(self) -> tuple[ClisParams, SimParams, Arena]:
+        """The parameters of this run (validated: a bad override raises naming the key)."""
+        params = load_clis_params(overrides=self.overrides)
+        sim_params = load_sim_params(overrides=self.sim_overrides)
+        arena = load_arena(self.arena, sim_params.robot.radius)
+        return params, sim_params, arena
+
+    def validate(self) -> None:
+        if self.condition not in CONDITIONS:
+            raise ValueError(f'unknown condition {self.condition!r}')
+        self.load()
+
+    def result_path(self) -> Path:
+        slug = re.sub(r'[^A-Za-z0-9_.=-]+', '_', self.label)
+        return Path(self.run_dir) / f'{slug}__s{self.seed}.json'
+
+    def done(self) -> bool:
+        return self.result_path().is_file()
+
+
+@dataclass
+class JobResult:
+    """Everything a run produced (saved as one JSON file)."""
+
+    spec: dict
+    modules: list[str]
+    block: int
+    episodes: list[dict]
+    evals: list[dict]
+    place_map: dict | None
+    arena: dict
+    seconds: float
+    final_diagnostics: dict = field(default_factory=dict)
+    params_hash: str = ''
+
+    def _blocks(self, key: str) -> np.ndarray:
+        values = np.array([row.get(key, np.nan) for row in self.episodes], float)
+        n_blocks = len(values) // self.block
+        return values[:n_blocks * self.block].reshape(n_blocks, self.block)
+
+    def success_curve(self) -> list[float]:
+        """Successes per block of ``block`` learning episodes."""
+        return self._blocks('reached').sum(1).tolist()
+
+    def selection_shares(self) -> np.ndarray:
+        """Mean share of the episode time each module acted, per block, shape (B, N)."""
+        return np.stack([self._blocks(f'share_{m}').mean(1) for m in self.modules], axis=1)
+
+    def block_stat(self, key: str, fn: Callable = np.nanmean) -> np.ndarray:
+        """``fn`` of column ``key`` over each block (NaN where a block has no value)."""
+        blocks = self._blocks(key)
+        out = np.full(len(blocks), np.nan)
+        for k, row in enumerate(blocks):
+            finite = row[np.isfinite(row)]
+            if finite.size:
+                out[k] = fn(finite)
+        return out
+
+    def save(self, run_dir: str | os.PathLike) -> Path:
+        """Write atomically (a crash never leaves a half-written result)."""
+        path = JobSpec(**self.spec).result_path()
+        tmp = path.with_suffix('.json.tmp')
+        tmp.write_text(json.dumps(asdict(self), allow_nan=True))
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> JobResult:
+        return cls(**json.loads(Path(path).read_text()))
+
+
+def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -> JobResult:
+    """Learn for ``spec.episodes`` episodes, then evaluate from every start point.
+
+    Seeding: the simulator, the start draws and the agent have separate generators derived from
+    the seed, so every condition sees the same sequence of start points for a given seed.
+    """
+    t0 = time.perf_counter()
+    params, sim_params, arena = spec.load()
+    sim = Simulator(arena, sim_params, np.random.default_rng([spec.seed, 0]))
+    start_rng = np.random.default_rng([spec.seed, 1])
+    agent = Agent(params, spec.condition, arena, np.random.default_rng([spec.seed, 2]))
+    base = {'label': spec.label, 'condition': spec.condition, 'seed': spec.seed}
+    episodes, evals = [], []
+    for ep in range(spec.episodes):
+        start, heading = draw_start(spec.train_start, arena, start_rng)
+        row = run_episode(sim, agent, start, heading, learn=True)
+        episodes.append({**base, 'phase': 'train', 'episode': ep, **row})
+        if progress is not None and ((ep + 1) % 10 == 0 or ep + 1 == spec.episodes):
+            recent = episodes[-spec.block:]
+            progress(ep + 1, f'{spec.label} s{spec.seed} ep {ep + 1} '
+                             f'succ {sum(r["reached"] for r in recent)}/{len(recent)}')
+    for name in arena.start_names:
+        for k in range(spec.eval_episodes):
+            row = run_episode(sim, agent, name, None, learn=False)
+            evals.append({**base, 'phase': 'eval', 'episode': k, **row})
+    place_map = place_selection_map(agent, sim)
+    ckpt = JobSpec(**asdict(spec)).result_path().with_suffix('.npz')
+    save_checkpoint(ckpt, agent.modules, params_hash(params),
+                    {'label': spec.label, 'seed': spec.seed, 'episodes': spec.episodes})
+    final = {}
+    last = episodes[-spec.block:]
+    for key in ('reached', 'duration', 'collisions'):
+        final[key] = float(np.mean([r[key] for r in last]))
+    for name in agent.names:
+        final[f'p_{name}'] = float(np.mean([r[f'p_{name}'] for r in last]))
+        final[f'share_{name}'] = float(np.mean([r[f'share_{name}'] for r in last]))
+        logc = [r.get(f'log10c_{name}', np.nan) for r in last]
+        logc = [v for v in logc if np.isfinite(v)]
+        final[f'median_log10c_{name}'] = float(np.median(logc)) if logc else math.nan
+    return JobResult(spec=asdict(spec), modules=agent.names, block=spec.block,
+                     episodes=episodes, evals=evals, place_map=place_map,
+                     arena=arena_dict(arena), seconds=time.perf_counter() - t0,
+                     final_diagnostics=final, params_hash=params_hash(params))
