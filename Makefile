@@ -2,6 +2,7 @@
 #   make run    set up, then run the main job on the simulator
 #   make test   set up, then lint and run the test suite
 #   make bench  set up, then run the benchmarks (results in docs/benchmarks.md)
+#   make reproduce  the full paper reproduction (about 1 h on 2 cores; docs/results.md)
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 .DELETE_ON_ERROR:
@@ -17,7 +18,13 @@ SOURCES := $(shell find src -type f \( -name '*.py' -o -name package.xml -o -nam
   -o -path '*/scripts/*' -o -path '*/resource/*' \) -not -path '*/__pycache__/*') $(wildcard config/*)
 RUN_ARGS ?=
 
-.PHONY: help setup run test lint bench clean
+# The full reproduction (docs/results.md): the paper preset, then the variants on seeds 0-4.
+REPRO_OUT ?= results/paper
+REPRO_SEEDS ?= 10
+REPRO_EPISODES ?= 1000
+VARIANTS ?= sync@common.beta=200.0,async@common.beta=200.0,async@arbiter.selection=decision,async@learner.correction=clipped,async@learner.resample=zoh
+
+.PHONY: help setup run test lint bench clean reproduce
 help:
 	@sed -n '2,5p' Makefile | sed 's/^# *//'
 
@@ -44,8 +51,13 @@ install/.stamp: $(VENV)/.stamp $(SOURCES)
 	  || { mkdir -p log; cat log/colcon-build.txt; exit 1; }
 	@touch $@
 
+# The main job on the simulator: check the ROS setup, then a short learning experiment
+# (Innate, View, Sync, Async; 2 seeds x 300 episodes; about 3 min) with its figures.
+RUN_OUT ?= results/run
 run: setup
-	@$(ENV) && clis doctor $(RUN_ARGS)
+	@$(ENV) && clis doctor
+	@$(ENV) && clis experiment --conditions innate,view,sync,async --episodes 300 --seeds 2 \
+	  --out $(RUN_OUT) $(RUN_ARGS)
 
 lint: setup
 	$(VENV)/bin/ruff check src test bench
@@ -55,6 +67,12 @@ test: lint
 
 bench: setup
 	@$(ENV) && python bench/run_all.py
+
+reproduce: setup
+	@$(ENV) && clis experiment --conditions innate,view,place,sync,async \
+	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --out $(REPRO_OUT) --resume
+	@$(ENV) && clis experiment --conditions $(VARIANTS) \
+	  --episodes $(REPRO_EPISODES) --seeds 5 --out $(REPRO_OUT)-variants --resume
 
 clean:
 	rm -rf build install log $(VENV)

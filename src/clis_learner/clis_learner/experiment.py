@@ -71,12 +71,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--first-seed', type=int, default=0, help='first seed (default 0)')
     p.add_argument('--eval-episodes', type=int, default=10,
                    help='evaluation episodes per start point A-E at the end (default 10)')
+    p.add_argument('--train-start', default='wander',
+                   help="where learning episodes start: 'wander' (default, the paper: the hand-"
+                        "made wander policy moves the robot from where the last episode ended),"
+                        " 'starts' (one of A-E, random heading), 'random', or a start name")
+    p.add_argument('--block', type=int, default=50,
+                   help='episodes per point of the learning curve (default 50, the paper)')
     p.add_argument('--out', type=Path, required=True, help='output folder')
     p.add_argument('--arena', type=Path, help='arena file (default config/arena.yaml)')
     p.add_argument('--set', dest='sets', action='append', default=[], metavar='KEY=VALUE',
                    help='override config/clis.yaml for all conditions, e.g. common.beta=2')
     p.add_argument('--sim-set', dest='sim_sets', action='append', default=[],
-                   metavar='KEY=VALUE', help='override config/sim.yaml, e.g. sensors.ir_noise=0')
+                   metavar='KEY=VALUE', help='override config/sim.yaml, e.g. sensors.ir_noise_sigma=0')
     p.add_argument('--workers', type=int, default=os.cpu_count() or 1,
                    help='parallel processes (default: all cores)')
     p.add_argument('--resume', action='store_true', help='keep finished runs in OUT/runs')
@@ -160,8 +166,13 @@ def main(args: argparse.Namespace) -> int:
     except argparse.ArgumentTypeError as exc:
         print(f'clis experiment: {exc}', file=sys.stderr)
         return 2
-    if args.episodes < 1 or args.seeds < 1 or args.workers < 1:
-        print('clis experiment: --episodes, --seeds and --workers must be >= 1', file=sys.stderr)
+    if min(args.episodes, args.seeds, args.workers, args.block) < 1:
+        print('clis experiment: --episodes, --seeds, --workers and --block must be >= 1',
+              file=sys.stderr)
+        return 2
+    if args.episodes < args.block:
+        print(f'clis experiment: --episodes {args.episodes} is shorter than one block '
+              f'(--block {args.block})', file=sys.stderr)
         return 2
     common = _overrides(args.sets)
     sim_overrides = _overrides(args.sim_sets)
@@ -172,7 +183,8 @@ def main(args: argparse.Namespace) -> int:
                 index=len(specs), label=label.strip(), condition=name,
                 overrides={**common, **overrides}, sim_overrides=sim_overrides, seed=seed,
                 episodes=args.episodes, eval_episodes=args.eval_episodes,
-                arena=str(args.arena) if args.arena else None, run_dir=str(runs_dir)))
+                arena=str(args.arena) if args.arena else None, run_dir=str(runs_dir),
+                block=args.block, train_start=args.train_start))
     try:  # validate every parameter set before starting hours of work
         for spec in specs:
             spec.validate()
@@ -183,6 +195,7 @@ def main(args: argparse.Namespace) -> int:
         'argv': sys.argv, 'conditions': conditions, 'episodes': args.episodes,
         'seeds': list(range(args.first_seed, args.first_seed + args.seeds)),
         'eval_episodes': args.eval_episodes, 'sets': common, 'sim_sets': sim_overrides,
+        'train_start': args.train_start, 'block': args.block,
         'arena': str(args.arena) if args.arena else None}, indent=2))
     todo = [s for s in specs if not (args.resume or args.figures_only) or not s.done()]
     if args.figures_only:
@@ -282,4 +295,8 @@ def merge(results: list[JobResult], out: Path, wall_seconds: float | None) -> di
 
 def _mean_dicts(dicts: list[dict]) -> dict:
     keys = dict.fromkeys(k for d in dicts for k in d)
-    return {k: float(np.nanmean([d.get(k, np.nan) for d in dicts])) for k in keys}
+    out = {}
+    for k in keys:
+        values = np.array([d.get(k, np.nan) for d in dicts], float)
+        out[k] = float(values[np.isfinite(values)].mean()) if np.isfinite(values).any() else None
+    return out

@@ -118,7 +118,10 @@ def fig4(results, path: Path) -> None:
     for ax, label in zip(axes[0], labels):
         runs = _runs(results, label)
         pm = runs[0].place_map
-        p = np.nanmean([np.asarray(r.place_map['p'], float) for r in runs], axis=0)
+        maps = np.array([r.place_map['p'] for r in runs], float)  # (seeds, ny, nx)
+        p = np.full(maps.shape[1:], np.nan)
+        free = np.isfinite(maps).all(0)
+        p[free] = maps[:, free].mean(0)
         half = runs[0].arena['half_size']
         im = ax.imshow(p, origin='lower', extent=(-half, half, -half, half), vmin=0, vmax=1,
                        cmap='viridis', interpolation='nearest')

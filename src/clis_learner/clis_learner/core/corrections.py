@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['Correction', 'TruncatedRatio', 'NoCorrection', 'CORRECTIONS', 'make_correction']
+__all__ = ['Correction', 'TruncatedRatio', 'ClippedRatio', 'NoCorrection', 'CORRECTIONS', 'make_correction']
 
 
 class Correction(Protocol):
@@ -59,6 +59,22 @@ class TruncatedRatio:
             np.asarray(pi_behaviour, dtype=np.float64) + eps)
 
 
+class ClippedRatio(TruncatedRatio):
+    """Beyond the paper: the truncated ratio (7) clipped at 1, ``min(1, rho~)``.
+
+    As in Retrace / V-trace (Munos et al. 2016; Espeholt et al. 2018): the product ``c`` and
+    the trace ``lambda gamma rho e`` of (8) can then only shrink, so TD(lambda) with IS cannot
+    diverge. The estimate is biased toward the behaviour policy's values, and an episode still
+    teaches a module only as far as its actions agree with the module's policy.
+    """
+
+    name = 'clipped'
+
+    def ratio(self, pi_target: ArrayLike, pi_behaviour: ArrayLike) -> np.ndarray:
+        """``min(1, (pi_i + epsilon) / (pi_i' + epsilon))`` elementwise."""
+        return np.minimum(super().ratio(pi_target, pi_behaviour), 1.0)
+
+
 class NoCorrection:
     """``rho = 1``: every episode treated as on-policy (an ablation, not the paper)."""
 
@@ -75,6 +91,7 @@ class NoCorrection:
 #: Registry: name -> factory taking ``epsilon`` (``common.epsilon``).
 CORRECTIONS: dict[str, Callable[[float], Correction]] = {
     'paper': TruncatedRatio,
+    'clipped': ClippedRatio,
     'none': NoCorrection,
 }
 

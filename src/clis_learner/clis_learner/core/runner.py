@@ -242,7 +242,7 @@ class JobSpec:
     arena: str | None
     run_dir: str
     block: int = 50
-    train_start: str = 'starts'
+    train_start: str = 'wander'
 
     def load(self) -> tuple[ClisParams, SimParams, Arena]:
         """The parameters of this run (validated: a bad override raises naming the key)."""
@@ -254,7 +254,8 @@ class JobSpec:
     def validate(self) -> None:
         if self.condition not in CONDITIONS:
             raise ValueError(f'unknown condition {self.condition!r}')
-        self.load()
+        _, _, arena = self.load()
+        draw_start(self.train_start, arena, np.random.default_rng(0))  # raises if unknown
 
     def result_path(self) -> Path:
         slug = re.sub(r'[^A-Za-z0-9_.=-]+', '_', self.label)
