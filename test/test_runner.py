@@ -5,15 +5,14 @@ from __future__ import annotations
 import csv
 import json
 
-import numpy as np
-import pytest
-
 from clis_learner.cli import main as clis
 from clis_learner.core.config import load_clis_params
 from clis_learner.core.runner import Agent, JobSpec, place_selection_map, run_episode, run_job
 from cr_sim.core.arena import load_arena
 from cr_sim.core.sim import Simulator, load_sim_params
 from cr_sim.core.starts import draw_start
+import numpy as np
+import pytest
 
 
 def rollout(condition: str, seed: int, episodes: int, start: str = 'starts',

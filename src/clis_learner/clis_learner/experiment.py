@@ -82,7 +82,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--set', dest='sets', action='append', default=[], metavar='KEY=VALUE',
                    help='override config/clis.yaml for all conditions, e.g. common.beta=2')
     p.add_argument('--sim-set', dest='sim_sets', action='append', default=[],
-                   metavar='KEY=VALUE', help='override config/sim.yaml, e.g. sensors.ir_noise_sigma=0')
+                   metavar='KEY=VALUE',
+                   help='override config/sim.yaml, e.g. sensors.ir_noise_sigma=0.0')
     p.add_argument('--workers', type=int, default=os.cpu_count() or 1,
                    help='parallel processes (default: all cores)')
     p.add_argument('--resume', action='store_true', help='keep finished runs in OUT/runs')

@@ -22,7 +22,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['Correction', 'TruncatedRatio', 'ClippedRatio', 'NoCorrection', 'CORRECTIONS', 'make_correction']
+__all__ = ['Correction', 'TruncatedRatio', 'ClippedRatio', 'NoCorrection', 'CORRECTIONS',
+           'make_correction']
 
 
 class Correction(Protocol):
