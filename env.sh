@@ -25,5 +25,8 @@ if [ -z "${CLIS_NETWORK:-}" ]; then
   export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_clis_root/config/fastdds_loopback.xml}"
   export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 fi
+# One BLAS thread per process: the project parallelises with processes (experiment workers,
+# one node per process), and OpenBLAS threads on top oversubscribe the cores.
+export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}" OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
 export CLIS_CONFIG_DIR="${CLIS_CONFIG_DIR:-$_clis_root/config}"
 unset _clis_root

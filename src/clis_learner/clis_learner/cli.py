@@ -7,9 +7,16 @@ ROS_DOMAIN_ID) unless ``--network`` is given, so that nothing it starts talks to
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
-from clis_learner.ros_env import apply_ros_env
+# One BLAS thread per process, set before numpy loads: `clis experiment` runs one process per
+# core, and OpenBLAS threads on top of that oversubscribe the cores (the place module's
+# localization update was 4.5x slower with 2 workers; docs/benchmarks.md).
+for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+    os.environ.setdefault(_var, '1')
+
+from clis_learner.ros_env import apply_ros_env  # noqa: E402
 
 EPILOG = """\
 examples:
