@@ -233,8 +233,15 @@ def success_rate(mods: list[ModuleCore], actor: str, seed: int, n: int = 200) ->
     return float(np.mean([toy_episode(mods, actor, rng).reached for _ in range(n)]))
 
 
-def test_policy_gradient_learns_on_policy(params):
+@pytest.fixture
+def scaled():
+    """The toy's step sizes are set for the scaled policy step (inverse Fisher)."""
+    return load_clis_params(overrides={'learner.policy_step': 'scaled'})
+
+
+def test_policy_gradient_learns_on_policy(scaled):
     """A module trained by (9) from its own episodes reaches the goal far more often."""
+    params = scaled
     view = toy_module('view')
     before = success_rate([view], 'view', seed=100)
     learner, rng = Learner([view], params), np.random.default_rng(0)
@@ -244,9 +251,10 @@ def test_policy_gradient_learns_on_policy(params):
     assert before < 0.2 and after > before + 0.5, (before, after)
 
 
-def test_policy_gradient_learns_off_policy_by_importance_sampling(params):
+def test_policy_gradient_learns_off_policy_by_importance_sampling(scaled):
     """The cooperation of CLIS: a learned module that never acts improves from the episodes
     of a fixed forward-biased (innate-like) module, through the truncated ratios (7)."""
+    params = scaled
     inn, view = toy_module('innate', fixed_forward=0.4), toy_module('view')
     before = success_rate([inn, view], 'view', seed=100)
     learner, rng = Learner([inn, view], params), np.random.default_rng(1)
@@ -267,7 +275,8 @@ def test_policy_gradient_learns_off_policy_by_importance_sampling(params):
 
 # ------------------------------------------------------------------------------ options
 
-def test_policy_step_options_and_learned_sigma(params):
+def test_policy_step_options_and_learned_sigma(scaled):
+    params = scaled
     raw = load_clis_params(overrides={'learner.policy_step': 'raw'})
     mods_s = make_modules(params, 'view', LANDMARKS, 1.5)
     mods_r = copy.deepcopy(mods_s)

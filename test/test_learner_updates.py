@@ -108,8 +108,11 @@ def test_corrections_registry():
     assert make_correction('paper', 0.2).epsilon == 0.2
     assert np.array_equal(make_correction('none', 0.2).ratio([1.0, 9.0], [3.0, 0.1]), [1, 1])
     assert isinstance(make_correction('none', 0.2), NoCorrection)
+    clipped = make_correction('clipped', 0.2)
+    # min(1, (7)): (1 + 0.2) / (3 + 0.2) = 0.375 stays, (9 + 0.2) / (0.1 + 0.2) -> 1
+    assert np.allclose(clipped.ratio([1.0, 9.0], [3.0, 0.1]), [0.375, 1.0])
     with pytest.raises(ValueError, match='unknown correction'):
-        make_correction('clipped', 0.2)
+        make_correction('bogus', 0.2)
 
 
 # ------------------------------------------------------------------------------ (8)
