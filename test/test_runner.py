@@ -86,7 +86,7 @@ def test_place_selection_map_covers_the_free_arena():
     assert place_selection_map(solo, sim) is None
 
 
-def test_experiment_command_writes_results_and_resumes(tmp_path):
+def test_experiment_command_writes_results_and_resumes(tmp_path, capsys):
     out = tmp_path / 'exp'
     argv = ['experiment', '--conditions', 'innate,async@common.beta=200.0', '--episodes', '4',
             '--block', '2', '--seeds', '2', '--eval-episodes', '1', '--workers', '2',
@@ -108,6 +108,11 @@ def test_experiment_command_writes_results_and_resumes(tmp_path):
     before = {p: p.stat().st_mtime_ns for p in runs}
     assert clis(argv + ['--resume']) == 0
     assert {p: p.stat().st_mtime_ns for p in runs} == before, '--resume reran finished runs'
+    capsys.readouterr()
+    assert clis(['report', str(out)]) == 0
+    table = capsys.readouterr().out
+    assert '| async@common.beta=200.0 | 2 |' in table and '| innate | 2 |' in table
+    assert '| async@common.beta=200.0 | place |' in table
 
 
 def test_run_job_matches_episode_rollout(tmp_path):

@@ -23,6 +23,8 @@ examples:
   clis doctor                      check the ROS 2 setup: distro, rmw, DDS profile, pub/sub
   clis --domain-id 7 doctor        same, on a chosen ROS_DOMAIN_ID
   clis --network doctor            opt in to DDS on all interfaces (e.g. a real robot)
+  clis experiment --help           the paper's experiments, headless (Fig. 3-5)
+  clis report results/paper        tables of measured results from experiment folders
 """
 
 
@@ -44,13 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list:
     """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
-    registrars = []
-    try:
-        from clis_learner import experiment
-        registrars.append(experiment.register)
-    except ImportError:  # pragma: no cover - before the experiment runner exists
-        pass
-    return registrars
+    from clis_learner import experiment, report
+    return [experiment.register, report.register]
 
 
 def main(argv: list[str] | None = None) -> int:

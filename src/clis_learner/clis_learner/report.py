@@ -1,0 +1,97 @@
+"""``clis report``: the measured numbers behind docs/results.md, from saved experiment folders.
+
+For each condition: successes per block at a few points of learning (mean and 95% t-band over
+seeds), the first block whose mean reaches Innate's level, the evaluation from A-E, who acted
+(selection shares early, mid, late), the selection probability of eq. (3) at the start state,
+and the importance products (median log10 c of off-policy episodes). Markdown on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from clis_learner.core.runner import JobResult
+from clis_learner.figures import STARTS, band
+
+
+def load_runs(folders: list[Path]) -> list[JobResult]:
+    runs = []
+    for folder in folders:
+        paths = sorted((folder / 'runs').glob('*.json'))
+        if not paths:
+            raise SystemExit(f'clis report: no runs in {folder}/runs (run clis experiment)')
+        runs += [JobResult.load(p) for p in paths]
+    return runs
+
+
+def _fmt(mean: float, half: float) -> str:
+    return f'{mean:.1f} ± {half:.1f}'
+
+
+def report(runs: list[JobResult]) -> str:
+    labels = list(dict.fromkeys(r.spec['label'] for r in runs))
+    by = {lb: [r for r in runs if r.spec['label'] == lb] for lb in labels}
+    block = runs[0].block
+    innate = by.get('innate')
+    innate_level = (float(np.mean([r.success_curve() for r in innate])) if innate else None)
+    n_blocks = min(len(r.success_curve()) for r in runs)
+    points = sorted({0, 2, 5, n_blocks // 2, n_blocks - 1} & set(range(n_blocks)))
+    head = ' | '.join(f'ep {(k + 1) * block}' for k in points)
+    out = [f'Successes per {block} learning episodes (mean ± 95% t-band over seeds); '
+           + (f"Innate's level = {innate_level:.1f}." if innate_level is not None else ''), '',
+           f'| condition | seeds | {head} | first block at Innate level | eval success A-E |',
+           '|---|---|' + '---|' * len(points) + '---|---|']
+    for lb, rs in by.items():
+        curves = np.array([r.success_curve()[:n_blocks] for r in rs], float)
+        mean, half = band(curves)
+        cells = ' | '.join(_fmt(mean[k], half[k]) for k in points)
+        reach = 'n/a'
+        if innate_level is not None and lb != 'innate':
+            hit = np.nonzero(mean >= innate_level)[0]
+            reach = f'ep {(hit[0] + 1) * block}' if hit.size else 'never'
+        ev = np.mean([[e['reached'] for e in r.evals] for r in rs])
+        out.append(f'| {lb} | {len(rs)} | {cells} | {reach} | {100 * ev:.0f}% |')
+    out += ['', 'Evaluation after learning: mean time to the destination [s] from each start '
+            '(timeouts count as 60 s; mean ± 95% t-band over seeds) and success rate.', '',
+            '| condition | ' + ' | '.join(STARTS) + ' |', '|---|' + '---|' * len(STARTS)]
+    for lb, rs in by.items():
+        per_seed = np.array([[np.mean([e['duration'] for e in r.evals if e['start'] == s])
+                              for s in STARTS] for r in rs])
+        succ = np.array([[np.mean([e['reached'] for e in r.evals if e['start'] == s])
+                          for s in STARTS] for r in rs]).mean(0)
+        mean, half = band(per_seed)
+        out.append(f'| {lb} | ' + ' | '.join(
+            f'{m:.1f} ± {h:.1f} ({100 * sc:.0f}%)' for m, h, sc in zip(mean, half, succ))
+            + ' |')
+    multi = [lb for lb in labels if len(by[lb][0].modules) > 1]
+    if multi:
+        thirds = [(0, n_blocks // 3), (n_blocks // 3, 2 * n_blocks // 3),
+                  (2 * n_blocks // 3, n_blocks)]
+        out += ['', 'Who acted (share of episode time; first, middle and last third of '
+                'learning), Pr(i | x(0)) of eq. (3) over the run (min-max of block means), and '
+                'the median log10 of the importance product c at the end of episodes in which '
+                'the module did not act (last third).', '',
+                '| condition | module | share early | share mid | share late | Pr(i|x0) | '
+                'median log10 c |', '|---|---|---|---|---|---|---|']
+        for lb in multi:
+            rs = by[lb]
+            for k, name in enumerate(rs[0].modules):
+                shares = np.mean([r.selection_shares()[:n_blocks, k] for r in rs], axis=0)
+                sh = [100 * shares[a:b].mean() for a, b in thirds]
+                p = np.mean([r.block_stat(f'p_{name}')[:n_blocks] for r in rs], axis=0)
+                logc = np.nanmedian(np.concatenate(
+                    [r.block_stat(f'log10c_{name}', np.median)[thirds[2][0]:n_blocks]
+                     for r in rs]))
+                out.append(f'| {lb} | {name} | {sh[0]:.0f}% | {sh[1]:.0f}% | {sh[2]:.0f}% | '
+                           f'{p.min():.2f}-{p.max():.2f} | {logc:.1f} |')
+    return '\n'.join(out)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('report', help='tables of measured results from experiment folders',
+                       description=__doc__)
+    p.add_argument('folders', type=Path, nargs='+', help='output folders of clis experiment')
+    p.set_defaults(func=lambda args: print(report(load_runs(args.folders))) or 0)
