@@ -14,29 +14,7 @@ from typing import Any
 
 from rclpy.node import Node
 
-
-def flatten(mapping: dict, prefix: str = '') -> dict[str, Any]:
-    """``{'a': {'b': 1}}`` -> ``{'a.b': 1}``."""
-    flat: dict[str, Any] = {}
-    for key, value in mapping.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, dict):
-            flat.update(flatten(value, name + '.'))
-        else:
-            flat[name] = value
-    return flat
-
-
-def unflatten(flat: dict[str, Any]) -> dict:
-    """Inverse of :func:`flatten`."""
-    nested: dict = {}
-    for dotted, value in flat.items():
-        node = nested
-        *path, last = dotted.split('.')
-        for key in path:
-            node = node.setdefault(key, {})
-        node[last] = value
-    return nested
+from cr_sim.core.params import flatten, unflatten
 
 
 def _ros_value(value: Any) -> Any:

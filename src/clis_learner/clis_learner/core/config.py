@@ -9,24 +9,18 @@ Sections: ``common`` (gamma, base tick, beta, epsilon, speed limit), ``innate``,
 from __future__ import annotations
 
 from collections.abc import Mapping
-import copy
 import hashlib
 import json
 import os
-from pathlib import Path
 from typing import Any
 
 from clis_modules.core.arbiter import ArbiterParams
 from clis_modules.core.modules import CommonParams, InnateParams, PlaceParams, ViewParams
 from cr_sim.core.params import (
-    ConfigError,
     as_dict,
-    build,
-    config_dir,
     dataclass,
+    load_params,
     param,
-    ros_parameters,
-    set_dotted,
 )
 
 from clis_learner.core.corrections import CORRECTIONS
@@ -63,16 +57,6 @@ class ClisParams:
     learner: LearnerParams = param(doc='section learner')
 
 
-def _flatten(d: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, Mapping):
-            out.update(_flatten(v, f'{prefix}{k}.'))
-        else:
-            out[f'{prefix}{k}'] = v
-    return out
-
-
 def load_clis_params(path: str | os.PathLike | None = None,
                      overrides: Mapping[str, Any] | None = None) -> ClisParams:
     """Read ``/**: ros__parameters:`` of a CLIS parameter file into :class:`ClisParams`.
@@ -90,14 +74,7 @@ def load_clis_params(path: str | os.PathLike | None = None,
     ConfigError
         Naming the file and the dotted key: missing, unknown, wrong type or out of range.
     """
-    p = Path(path) if path is not None else config_dir() / 'clis.yaml'
-    data = copy.deepcopy(ros_parameters(p, node=CLIS_NODE))
-    try:
-        for key, value in _flatten(overrides or {}).items():
-            set_dotted(data, key, value)
-        return build(ClisParams, data)
-    except ConfigError as exc:
-        raise ConfigError(f'{p}: {exc}') from None
+    return load_params(ClisParams, 'clis.yaml', CLIS_NODE, path, overrides)
 
 
 def params_hash(params: Any) -> str:

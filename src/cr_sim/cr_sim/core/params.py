@@ -30,7 +30,7 @@ import yaml
 
 __all__ = [
     'ConfigError', 'param', 'build', 'load_yaml', 'ros_parameters', 'config_dir', 'replace',
-    'dataclass', 'as_dict', 'set_dotted',
+    'dataclass', 'as_dict', 'set_dotted', 'flatten', 'unflatten', 'load_params',
 ]
 
 
@@ -227,3 +227,64 @@ def ros_parameters(path: str | os.PathLike, node: str = '/**') -> dict:
     if node not in data or 'ros__parameters' not in (data[node] or {}):
         raise ConfigError(f'{path}: missing "{node}: ros__parameters:" section')
     return data[node]['ros__parameters']
+
+
+def flatten(mapping: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    """``{'a': {'b': 1}}`` -> ``{'a.b': 1}`` (already dotted keys pass through)."""
+    flat: dict[str, Any] = {}
+    for key, value in mapping.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+def unflatten(flat: Mapping[str, Any]) -> dict:
+    """Inverse of :func:`flatten`."""
+    nested: dict = {}
+    for dotted, value in flat.items():
+        node = nested
+        *path, last = dotted.split('.')
+        for key in path:
+            node = node.setdefault(key, {})
+        node[last] = value
+    return nested
+
+
+def load_params(cls: type, filename: str, node: str, path: str | os.PathLike | None = None,
+                overrides: Mapping[str, Any] | None = None,
+                ignore: tuple[str, ...] = (), where: str = '') -> Any:
+    """Build ``cls`` from the ``node: ros__parameters:`` section of a config file.
+
+    Parameters
+    ----------
+    cls : type
+        The frozen parameter dataclass.
+    filename : str
+        File in :func:`config_dir` used when ``path`` is None.
+    node : str
+        Node key of the ROS 2 parameter file (``'/**'`` for every node).
+    overrides : Mapping, optional
+        Values replacing the file's, nested and/or dotted (``{'common.beta': 200.0}``); every
+        key must exist in the file.
+    ignore : tuple of str
+        Top-level sections left out (read by someone else, e.g. the ROS node's ``node``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the dotted key: missing, unknown, wrong type or out of range.
+    """
+    import copy
+
+    p = Path(path) if path is not None else config_dir() / filename
+    raw = ros_parameters(p, node=node)
+    data = {k: copy.deepcopy(v) for k, v in raw.items() if k not in ignore}
+    try:
+        for key, value in flatten(overrides or {}).items():
+            set_dotted(data, key, value)
+        return build(cls, data, where=where)
+    except ConfigError as exc:
+        raise ConfigError(f'{p}: {exc}') from None

@@ -44,10 +44,8 @@ results.
 from __future__ import annotations
 
 from collections.abc import Mapping
-import copy
 import math
 import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -56,13 +54,9 @@ from numpy.typing import ArrayLike
 from cr_sim.core.arena import Arena
 from cr_sim.core.geometry import box_planes, disc_gap, slab_planes, wrap_angle, wrap_angles
 from cr_sim.core.params import (
-    ConfigError,
-    build,
-    config_dir,
     dataclass,
+    load_params,
     param,
-    ros_parameters,
-    set_dotted,
 )
 from cr_sim.core.robot import (
     RobotParams,
@@ -133,17 +127,6 @@ class SimParams:
     wander: WanderParams = param(doc='section wander')
 
 
-def _flatten(d: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        key = f'{prefix}{k}'
-        if isinstance(v, Mapping):
-            out.update(_flatten(v, key + '.'))
-        else:
-            out[key] = v
-    return out
-
-
 def load_sim_params(path: str | os.PathLike | None = None,
                     overrides: Mapping[str, Any] | None = None) -> SimParams:
     """Read ``sim: ros__parameters:`` of a ROS 2 parameter file into :class:`SimParams`.
@@ -162,15 +145,7 @@ def load_sim_params(path: str | os.PathLike | None = None,
         Naming the file and the key: missing, unknown, wrong type or out of range.
         Sections listed in :data:`IGNORED_SECTIONS` (``node``) are left to the ROS node.
     """
-    p = Path(path) if path is not None else config_dir() / 'sim.yaml'
-    raw = ros_parameters(p, node='sim')
-    data = {k: copy.deepcopy(v) for k, v in raw.items() if k not in IGNORED_SECTIONS}
-    try:
-        for key, value in _flatten(overrides or {}).items():
-            set_dotted(data, key, value)
-        return build(SimParams, data, where='sim')
-    except ConfigError as exc:
-        raise ConfigError(f'{p}: {exc}') from None
+    return load_params(SimParams, 'sim.yaml', 'sim', path, overrides, IGNORED_SECTIONS, 'sim')
 
 
 # ------------------------------------------------------------------------------------------
