@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from cr_sim.core.arena import load_arena
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
@@ -111,11 +112,14 @@ def test_sim_node_publishes_interface_at_declared_rates_and_obeys_cmd_vel(probe)
     assert 'Traceback' not in out, out
 
 
-def test_sim_node_takes_plain_twist_by_parameter(probe):
+def test_sim_node_takes_plain_twist_by_parameter_and_resets_on_request(probe):
+    from std_srvs.srv import Trigger
+
     proc = start_node('cr_sim.sim_node', '-p', f'node.speed_factor:={SPEED}',
                       '-p', 'node.cmd_vel_stamped:=false', '-p', 'node.start:=A')
     try:
         probe.listen(Odometry, 'odom')
+        probe.listen(DiagnosticArray, 'episode', latched=True)
         assert probe.spin_until(lambda: probe.msgs['odom'], 30), stop(proc)
         p0 = pose_of(probe.msgs['odom'][-1])
         pub = probe.node.create_publisher(Twist, 'cmd_vel', 10)
@@ -126,6 +130,17 @@ def test_sim_node_takes_plain_twist_by_parameter(probe):
             probe.spin_for(0.05)
         p1 = pose_of(probe.msgs['odom'][-1])
         assert abs(math.remainder(p1[2] - p0[2], 2 * math.pi)) > 0.3, 'Twist turned the robot'
+        # the reset service ends the episode and starts the next one at start A again
+        client = probe.node.create_client(Trigger, 'reset')
+        assert client.wait_for_service(timeout_sec=10)
+        future = client.call_async(Trigger.Request())
+        assert probe.spin_until(future.done, 10) and future.result().success
+        events = [m.status[0].message for m in probe.msgs['episode']]
+        assert events[-2:] == ['reset', 'start'], events
+        n = len(probe.msgs['odom'])
+        assert probe.spin_until(lambda: len(probe.msgs['odom']) > n + 2, 10)
+        a = load_arena().start('A')
+        assert np.allclose(pose_of(probe.msgs['odom'][-1]), [a.x, a.y, a.heading], atol=1e-6)
     finally:
         stop(proc)
 
