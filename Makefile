@@ -22,10 +22,13 @@ RUN_ARGS ?=
 REPRO_OUT ?= results/paper
 REPRO_SEEDS ?= 10
 REPRO_EPISODES ?= 1000
-VARIANTS ?= sync@common.beta=200.0,async@common.beta=200.0,async@arbiter.selection=decision,\
+empty :=
+space := $(empty) $(empty)
+VARIANT_LIST := sync@common.beta=200.0,async@common.beta=200.0,async@arbiter.selection=decision,\
   async@learner.correction=clipped,async@learner.resample=zoh,async@common.base_tick=0.25,\
   place@place.localization.cell_size=0.2@place.localization.n_headings=2,\
   view@learner.policy_step=scaled
+VARIANTS ?= $(subst $(space),,$(strip $(VARIANT_LIST)))
 
 .PHONY: help setup run test lint bench clean reproduce
 help:
