@@ -42,6 +42,17 @@ def _runs(results, label):
     return [r for r in results if r.spec['label'] == label]
 
 
+def _multi_module_labels(results) -> list[str]:
+    """Labels of the conditions with more than one module (Sync, Async and their variants)."""
+    return [lb for lb in _labels(results) if len(_runs(results, lb)[0].modules) > 1]
+
+
+def _save(fig, path: Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def fig3a(results, path: Path) -> None:
     """Successes per block of learning episodes, mean and 95% band over seeds."""
     fig, ax = plt.subplots(figsize=(7, 4.2))
@@ -59,14 +70,12 @@ def fig3a(results, path: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc='lower right')
     ax.set_title('Fig. 3a: learning curves (mean, 95% t-band over seeds)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def fig3bc(results, path: Path) -> None:
     """Share of episodes in which each module was selected, per block, per multi-module run."""
-    labels = [lb for lb in _labels(results) if len(_runs(results, lb)[0].modules) > 1]
+    labels = _multi_module_labels(results)
     if not labels:
         return
     fig, axes = plt.subplots(len(labels), 1, figsize=(7, 2.4 * len(labels)), squeeze=False)
@@ -85,9 +94,7 @@ def fig3bc(results, path: Path) -> None:
         ax.legend(fontsize=7, loc='upper right', ncol=3)
     axes[-1, 0].set_xlabel('episodes')
     fig.suptitle('Fig. 3b/c: selection ratio over learning', fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def draw_arena(ax, arena: dict) -> None:
@@ -131,9 +138,7 @@ def fig4(results, path: Path) -> None:
         fig.colorbar(im, ax=ax, fraction=0.046)
     fig.suptitle('Fig. 4: probability of selecting the place module at the end of learning',
                  fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def fig5(results, path: Path) -> None:
@@ -155,14 +160,12 @@ def fig5(results, path: Path) -> None:
     ax.legend(fontsize=8)
     ax.grid(axis='y', alpha=0.3)
     ax.set_title('Fig. 5: time to the destination after learning (95% t-band over seeds)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def fig_diagnostics(results, path: Path) -> None:
     """Why cooperation does or does not happen: selection probability and IS products."""
-    labels = [lb for lb in _labels(results) if len(_runs(results, lb)[0].modules) > 1]
+    labels = _multi_module_labels(results)
     if not labels:
         return
     fig, axes = plt.subplots(2, len(labels), figsize=(4.5 * len(labels), 6), squeeze=False)
@@ -184,9 +187,7 @@ def fig_diagnostics(results, path: Path) -> None:
         for ax in axes[:, col]:
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def draw_all(out: Path, results, summary: dict) -> list[Path]:
