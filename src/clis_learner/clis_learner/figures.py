@@ -182,7 +182,7 @@ def fig_diagnostics(results, path: Path) -> None:
         axes[0, col].set_ylim(0, 1)
         axes[0, col].set_title(f'{label}: Pr(i | x(0)) (eq. 3)', fontsize=9)
         axes[1, col].set_title(f'{label}: median log10 c at episode end\n'
-                               '(off-policy episodes; eq. 6-7)', fontsize=9)
+                               '(off-policy episodes; eq. 6-7; floored at -300)', fontsize=9)
         axes[1, col].set_xlabel('episodes')
         for ax in axes[:, col]:
             ax.grid(alpha=0.3)

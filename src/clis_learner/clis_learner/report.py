@@ -73,9 +73,10 @@ def report(runs: list[JobResult]) -> str:
         out += ['', 'Who acted (share of episode time; first, middle and last third of '
                 'learning), Pr(i | x(0)) of eq. (3) over the run (min-max of block means), and '
                 'the median log10 of the importance product c at the end of episodes in which '
-                'the module did not act (last third).', '',
+                'the module did not act (last third), and the largest |V_i(x(0))| of the run '
+                '(median over seeds; returns lie in [-6, 1], so more means TD diverged).', '',
                 '| condition | module | share early | share mid | share late | Pr(i|x0) | '
-                'median log10 c |', '|---|---|---|---|---|---|---|']
+                'median log10 c | max abs V |', '|---|---|---|---|---|---|---|---|']
         for lb in multi:
             rs = by[lb]
             for k, name in enumerate(rs[0].modules):
@@ -85,8 +86,10 @@ def report(runs: list[JobResult]) -> str:
                 logc = np.nanmedian(np.concatenate(
                     [r.block_stat(f'log10c_{name}', np.median)[thirds[2][0]:n_blocks]
                      for r in rs]))
+                vmax = np.median([np.nanmax(np.abs([e[f'v_{name}'] for e in r.episodes]))
+                                  for r in rs])
                 out.append(f'| {lb} | {name} | {sh[0]:.0f}% | {sh[1]:.0f}% | {sh[2]:.0f}% | '
-                           f'{p.min():.2f}-{p.max():.2f} | {logc:.1f} |')
+                           f'{p.min():.2f}-{p.max():.2f} | {logc:.1f} | {vmax:.3g} |')
     return '\n'.join(out)
 
 
