@@ -27,7 +27,8 @@ space := $(empty) $(empty)
 VARIANT_LIST := sync@common.beta=200.0,async@common.beta=200.0,async@arbiter.selection=decision,\
   async@learner.correction=clipped,async@learner.resample=zoh,async@common.base_tick=0.25,\
   place@place.localization.cell_size=0.2@place.localization.n_headings=2,\
-  view@learner.policy_step=scaled
+  view@learner.policy_step=scaled,\
+  sync@learner.correction=clipped@common.beta=200.0,async@learner.correction=clipped@common.beta=200.0
 VARIANTS ?= $(subst $(space),,$(strip $(VARIANT_LIST)))
 
 .PHONY: help setup run test lint bench clean reproduce
