@@ -55,7 +55,7 @@ def _save(fig, path: Path) -> None:
 
 def fig3a(results, path: Path) -> None:
     """Successes per block of learning episodes, mean and 95% band over seeds."""
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = plt.subplots(figsize=(9, 4.2))
     for label in _labels(results):
         runs = _runs(results, label)
         curves = np.array([r.success_curve() for r in runs], float)
@@ -68,7 +68,7 @@ def fig3a(results, path: Path) -> None:
     ax.set_ylabel(f'successes per {block} episodes')
     ax.set_ylim(0, block)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc='lower right')
+    ax.legend(fontsize=8, loc='upper left', bbox_to_anchor=(1.01, 1.0))
     ax.set_title('Fig. 3a: learning curves (mean, 95% t-band over seeds)')
     _save(fig, path)
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clis_learner.core.runner import JobResult
+from clis_learner.core.runner import CONDITIONS, JobResult
 from clis_learner.figures import STARTS, band
 
 
@@ -24,7 +24,10 @@ def load_runs(folders: list[Path]) -> list[JobResult]:
         if not paths:
             raise SystemExit(f'clis report: no runs in {folder}/runs (run clis experiment)')
         runs += [JobResult.load(p) for p in paths]
-    return runs
+    # the paper's order (innate, view, place, sync, async), each followed by its variants
+    return sorted(runs, key=lambda r: (CONDITIONS.index(r.spec['condition']),
+                                       r.spec['label'] != r.spec['condition'],
+                                       r.spec['label'], r.spec['seed']))
 
 
 def _fmt(mean: float, half: float) -> str:
