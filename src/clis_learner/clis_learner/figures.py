@@ -49,14 +49,15 @@ def _multi_module_labels(results) -> list[str]:
 
 def _save(fig, path: Path) -> None:
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches='tight')
     plt.close(fig)
 
 
 def fig3a(results, path: Path) -> None:
     """Successes per block of learning episodes, mean and 95% band over seeds."""
-    fig, ax = plt.subplots(figsize=(9, 4.2))
-    for label in _labels(results):
+    labels = _labels(results)
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    for label in labels:
         runs = _runs(results, label)
         curves = np.array([r.success_curve() for r in runs], float)
         block = runs[0].block
@@ -68,7 +69,8 @@ def fig3a(results, path: Path) -> None:
     ax.set_ylabel(f'successes per {block} episodes')
     ax.set_ylim(0, block)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc='upper left', bbox_to_anchor=(1.01, 1.0))
+    ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.2),
+              ncol=2 if len(labels) > 5 else len(labels))
     ax.set_title('Fig. 3a: learning curves (mean, 95% t-band over seeds)')
     _save(fig, path)
 
