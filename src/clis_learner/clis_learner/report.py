@@ -77,7 +77,8 @@ def report(runs: list[JobResult]) -> str:
                 'learning), Pr(i | x(0)) of eq. (3) over the run (min-max of block means), and '
                 'the median log10 of the importance product c at the end of episodes in which '
                 'the module did not act (last third), and the largest |V_i(x(0))| of the run '
-                '(median over seeds; returns lie in [-6, 1], so more means TD diverged).', '',
+                '(median over seeds; a return is at most 1 and rarely below -1, so more means '
+                'TD diverged).', '',
                 '| condition | module | share early | share mid | share late | Pr(i|x0) | '
                 'median log10 c | max abs V |', '|---|---|---|---|---|---|---|---|']
         for lb in multi:
