@@ -135,8 +135,10 @@ def test_sim_node_takes_plain_twist_by_parameter_and_resets_on_request(probe):
         assert client.wait_for_service(timeout_sec=10)
         future = client.call_async(Trigger.Request())
         assert probe.spin_until(future.done, 10) and future.result().success
-        events = [m.status[0].message for m in probe.msgs['episode']]
-        assert events[-2:] == ['reset', 'start'], events
+        # the events arrive on their own topic: wait for them (no order across topics)
+        def events() -> list[str]:
+            return [m.status[0].message for m in probe.msgs['episode']]
+        assert probe.spin_until(lambda: events()[-2:] == ['reset', 'start'], 10), events()
         n = len(probe.msgs['odom'])
         assert probe.spin_until(lambda: len(probe.msgs['odom']) > n + 2, 10)
         a = load_arena().start('A')

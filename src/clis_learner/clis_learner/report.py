@@ -30,6 +30,13 @@ def load_runs(folders: list[Path]) -> list[JobResult]:
                                        r.spec['label'], r.spec['seed']))
 
 
+def _finite_stat(values: np.ndarray, fn=np.mean) -> float:
+    """``fn`` of the finite values, NaN when there are none (no warning)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    return float(fn(values)) if values.size else float('nan')
+
+
 def _fmt(mean: float, half: float) -> str:
     return f'{mean:.1f} ± {half:.1f}'
 
@@ -85,11 +92,11 @@ def report(runs: list[JobResult]) -> str:
             rs = by[lb]
             for k, name in enumerate(rs[0].modules):
                 shares = np.mean([r.selection_shares()[:n_blocks, k] for r in rs], axis=0)
-                sh = [100 * shares[a:b].mean() for a, b in thirds]
+                sh = [100 * _finite_stat(shares[a:b]) for a, b in thirds]
                 p = np.mean([r.block_stat(f'p_{name}')[:n_blocks] for r in rs], axis=0)
-                logc = np.nanmedian(np.concatenate(
+                logc = _finite_stat(np.concatenate(
                     [r.block_stat(f'log10c_{name}', np.median)[thirds[2][0]:n_blocks]
-                     for r in rs]))
+                     for r in rs]), np.median)
                 vmax = np.median([np.nanmax(np.abs([e[f'v_{name}'] for e in r.episodes]))
                                   for r in rs])
                 out.append(f'| {lb} | {name} | {sh[0]:.0f}% | {sh[1]:.0f}% | {sh[2]:.0f}% | '
