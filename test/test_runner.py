@@ -136,3 +136,24 @@ def test_experiment_rejects_bad_input_naming_it(tmp_path, capsys, argv, message)
     code = clis(['experiment', '--out', str(tmp_path / 'x'), '--episodes', '60', *argv])
     assert code == 2
     assert message in capsys.readouterr().err
+
+
+def test_experiment_takes_another_arena_file(tmp_path, repo, capsys):
+    import yaml
+
+    arena = yaml.safe_load((repo / 'config' / 'arena.yaml').read_text())
+    arena['starts']['A'] = {'x': 0.9, 'y': 1.2, 'heading_deg': -120.0}
+    path = tmp_path / 'arena.yaml'
+    path.write_text(yaml.safe_dump(arena))
+    out = tmp_path / 'exp'
+    assert clis(['experiment', '--conditions', 'innate', '--episodes', '2', '--block', '2',
+                 '--seeds', '1', '--eval-episodes', '1', '--workers', '1', '--out', str(out),
+                 '--quiet', '--arena', str(path)]) == 0
+    run = json.loads(next((out / 'runs').glob('*.json')).read_text())
+    assert run['arena']['starts']['A'] == [0.9, 1.2]
+    bad = tmp_path / 'bad.yaml'
+    arena['starts']['A'] = {'x': -0.6, 'y': 0.0, 'heading_deg': 0.0}  # inside obstacle S1
+    bad.write_text(yaml.safe_dump(arena))
+    assert clis(['experiment', '--conditions', 'innate', '--episodes', '2', '--block', '2',
+                 '--out', str(tmp_path / 'x'), '--arena', str(bad)]) == 2
+    assert "start 'A'" in capsys.readouterr().err
