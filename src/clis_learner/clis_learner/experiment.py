@@ -150,7 +150,7 @@ def _worker(spec: JobSpec, q) -> str:
     def report(episodes: int, note: str) -> None:
         q.put(('progress', spec.index, episodes, note))
     result = run_job(spec, progress=report)
-    path = result.save(spec.run_dir)
+    path = result.save()
     q.put(('done', spec.index, spec.episodes, f'{spec.label} seed {spec.seed} done'))
     return str(path)
 

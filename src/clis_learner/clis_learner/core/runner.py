@@ -303,8 +303,8 @@ class JobResult:
                 out[k] = fn(finite)
         return out
 
-    def save(self, run_dir: str | os.PathLike) -> Path:
-        """Write atomically (a crash never leaves a half-written result)."""
+    def save(self) -> Path:
+        """Write to the spec's result path, atomically (a crash never leaves half a file)."""
         path = JobSpec(**self.spec).result_path()
         tmp = path.with_suffix('.json.tmp')
         tmp.write_text(json.dumps(asdict(self), allow_nan=True))
