@@ -36,7 +36,8 @@ def setup(condition: str, seed: int = 0):
     sim_params = load_sim_params()
     arena = load_arena(None, sim_params.robot.radius)
     sim = Simulator(arena, sim_params, np.random.default_rng([seed, 0]))
-    agent = Agent(load_clis_params(), condition, arena, np.random.default_rng([seed, 2]))
+    agent = Agent(load_clis_params(), condition, arena, np.random.default_rng([seed, 2]),
+                  sim_params.robot.wheel_base)
     return sim, agent, arena, np.random.default_rng([seed, 1])
 
 

@@ -50,9 +50,9 @@ def fake_episode(mods: list[ModuleCore], behaviour, seed: int, duration: float =
                 if m.name == actor:
                     mem.record_action(t, m.sample(b, rng), actor)
         if rng.random() < 0.03:
-            mem.record_reward(t, -0.1)
+            mem.record_reward(t + DT, -0.1)                # stamped at the end of the tick
     if goal:
-        mem.record_reward((ticks - 1) * DT, 1.0)
+        mem.record_reward(ticks * DT, 1.0)
     mem.end(ticks * DT, reached=goal)
     return mem
 
@@ -221,7 +221,7 @@ def toy_episode(mods: list[ModuleCore], actor: str, rng: np.random.Generator) ->
                 mem.record_action(float(k), u, actor)
         s += 0.1 * 0.5 * (u[0] + u[1])
         if s >= GOAL:
-            mem.record_reward(float(k), 1.0)
+            mem.record_reward(k + 1.0, 1.0)                # at the end of the step
             mem.end(k + 1.0, reached=True)
             return mem
     mem.end(float(HORIZON), reached=False)

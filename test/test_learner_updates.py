@@ -78,10 +78,11 @@ def test_latest_index():
 
 def test_reward_sums_hand_computed_and_total_preserved():
     grid = np.array([0.0, 0.5, 1.0])
-    t_r = np.array([0.0, 0.45, 0.5, 15 * 0.05, 1.0, 1.3])
+    t_r = np.array([0.0, 0.45, 10 * 0.05, 15 * 0.05, 1.0, 1.3])
     r = np.array([-0.1, -0.1, -0.1, 0.2, 1.0, 5.0])
-    # [0, 0.5): -0.2; [0.5, 1.0): -0.1 + 0.2; [1.0, end]: 6
-    assert sum_rewards(t_r, r, grid) == pytest.approx([-0.2, 0.1, 6.0])
+    # rewards stamped at the end of their step: (.., 0.5]: -0.3 (0.0 goes to the first);
+    # (0.5, 1.0]: 0.2 + 1.0; (1.0, end]: 5
+    assert sum_rewards(t_r, r, grid) == pytest.approx([-0.3, 1.2, 5.0])
     rng = np.random.default_rng(2)
     t_r, r = np.sort(rng.uniform(-0.1, 60.0, 500)), rng.normal(size=500)
     grid = np.arange(0, 50) * 1.2

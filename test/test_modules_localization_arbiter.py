@@ -178,10 +178,14 @@ def test_selection_limits_and_availability():
         selection_probs([np.nan, 0.0, 0.0], g, 1.0)
 
 
+def arbiter_params(selection: str) -> ArbiterParams:
+    return ArbiterParams(selection=selection, stale_periods=1.5, start_timeout=0.5)
+
+
 def test_arbiter_frequencies_and_modes():
     values, gammas = [0.0, 1.0, 2.0], [0.5, 0.5, 0.5]
     p = selection_probs(values, gammas, 2.0)
-    arb = Arbiter(ArbiterParams(selection='episode'), 2.0, np.random.default_rng(0))
+    arb = Arbiter(arbiter_params('episode'), 2.0, np.random.default_rng(0))
     counts = np.bincount([arb.begin_episode(values, gammas) for _ in range(6000)], minlength=3)
     assert counts / 6000 == pytest.approx(p, abs=0.02)
     # episode mode keeps the module...
@@ -192,8 +196,8 @@ def test_arbiter_frequencies_and_modes():
     avail[first] = False
     assert arb.on_decision(values, gammas, avail) != first
     # decision mode redraws (same draws as begin_episode for the same rng)
-    a = Arbiter(ArbiterParams(selection='decision'), 2.0, np.random.default_rng(5))
-    b = Arbiter(ArbiterParams(selection='decision'), 2.0, np.random.default_rng(5))
+    a = Arbiter(arbiter_params('decision'), 2.0, np.random.default_rng(5))
+    b = Arbiter(arbiter_params('decision'), 2.0, np.random.default_rng(5))
     seq_a = [a.on_decision(values, gammas) for _ in range(100)]
     seq_b = [b.begin_episode(values, gammas) for _ in range(100)]
     assert seq_a == seq_b and len(set(seq_a)) == 3

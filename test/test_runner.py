@@ -14,6 +14,8 @@ from cr_sim.core.starts import draw_start
 import numpy as np
 import pytest
 
+WHEEL_BASE = load_sim_params().robot.wheel_base
+
 
 def rollout(condition: str, seed: int, episodes: int, start: str = 'starts',
             overrides: dict | None = None) -> list[dict]:
@@ -22,7 +24,7 @@ def rollout(condition: str, seed: int, episodes: int, start: str = 'starts',
     sim = Simulator(arena, sim_params, np.random.default_rng([seed, 0]))
     start_rng = np.random.default_rng([seed, 1])
     agent = Agent(load_clis_params(overrides=overrides), condition, arena,
-                  np.random.default_rng([seed, 2]))
+                  np.random.default_rng([seed, 2]), sim_params.robot.wheel_base)
     rows = []
     for _ in range(episodes):
         s, heading = draw_start(start, arena, start_rng)
@@ -52,11 +54,11 @@ def test_episode_rows_are_consistent():
 
 def test_sync_puts_every_module_on_the_slowest_period():
     arena = load_arena()
-    agent = Agent(load_clis_params(), 'sync', arena, np.random.default_rng(0))
+    agent = Agent(load_clis_params(), 'sync', arena, np.random.default_rng(0), WHEEL_BASE)
     assert {m.period for m in agent.modules} == {1.2}
     assert len(set(agent.gammas)) == 1
     assert [m.v_max for m in agent.modules] == pytest.approx([0.125] * 3)
-    asynchronous = Agent(load_clis_params(), 'async', arena, np.random.default_rng(0))
+    asynchronous = Agent(load_clis_params(), 'async', arena, np.random.default_rng(0), WHEEL_BASE)
     assert [m.period for m in asynchronous.modules] == [0.25, 0.5, 1.2]
 
 
@@ -73,7 +75,7 @@ def test_view_module_learns_to_reach_the_destination():
 def test_place_selection_map_covers_the_free_arena():
     arena = load_arena()
     sim = Simulator(arena, load_sim_params(), np.random.default_rng(0))
-    agent = Agent(load_clis_params(), 'async', arena, np.random.default_rng(0))
+    agent = Agent(load_clis_params(), 'async', arena, np.random.default_rng(0), WHEEL_BASE)
     pm = place_selection_map(agent, sim, resolution=0.25)
     p = np.array(pm['p'])
     assert p.shape == (12, 12)
@@ -82,7 +84,7 @@ def test_place_selection_map_covers_the_free_arena():
     assert np.all((p[free] >= 0) & (p[free] <= 1))
     # before learning, values are equal except the innate's high start: Pr(place) < 1/3
     assert np.all(p[free] < 1 / 3)
-    solo = Agent(load_clis_params(), 'place', arena, np.random.default_rng(0))
+    solo = Agent(load_clis_params(), 'place', arena, np.random.default_rng(0), WHEEL_BASE)
     assert place_selection_map(solo, sim) is None
 
 

@@ -6,16 +6,21 @@ What the learner needs to train every module from one episode, whichever module 
   ``tau_i``; all modules keep deciding whether they act or not);
 * actions: the commands the robot executed, as a piecewise-constant sequence of change points
   ``(t, u, behaviour)``: at each decision of the acting (behaviour) module, its *proposed*
-  action (before the runner's clamp; the densities of (7) are of the proposal) and its name;
-* rewards with their times (simulator ticks);
+  action (before the arbiter's clip; the densities of (7) are of the proposal) and its name;
+* rewards with their times;
 * the end time and whether the destination was reached.
 
-Time convention (all in seconds since the episode start, on the simulator's tick grid):
-a reward is stamped with the time the simulator step that earned it **started**, i.e. the time
-the command in force was issued (``res.t - dt`` for the step result ``res``), so that the reward
-of interval ``[l tau_i, (l + 1) tau_i)`` of module i is the sum of the rewards stamped inside it.
-Decisions at or after the end time are ignored. Times are compared with a tolerance of
-:data:`TIME_TOL` (1 us), so ``15 * 0.05`` and ``0.75`` are the same instant.
+Time convention (seconds on any clock: since the episode start in the headless runner, sim or
+wall time in the graph): a reward is stamped with the time at which the step that earned it
+**ended** (the stamp of the simulator's ``reward`` message), so the reward ``r(t + tau_i)`` of
+module i's interval ``(t_l, t_{l+1}]`` is the sum of the rewards stamped inside it.
+Decisions and actions at or after the end time are ignored. Times are compared with a tolerance
+of :data:`TIME_TOL` (1 us), so ``15 * 0.05`` and ``0.75`` are the same instant.
+
+:class:`EpisodeMemory` is one episode, recorded in time order. :class:`StreamBuffer` is what
+the learner node and the headless runner feed: the same records arriving in any order from
+several streams (one per topic), cut into an :class:`EpisodeMemory` per episode by the episode
+start and end times.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['TIME_TOL', 'EpisodeMemory']
+__all__ = ['TIME_TOL', 'EpisodeMemory', 'StreamBuffer']
 
 #: Two times closer than this [s] are the same instant.
 TIME_TOL = 1e-6
@@ -55,6 +60,7 @@ class EpisodeMemory:
         self._act_who: list[int] = []
         self._rew_t: list[float] = []
         self._rew_r: list[float] = []
+        self.t_start = 0.0
         self.t_end: float | None = None
         self.reached = False
 
@@ -92,7 +98,7 @@ class EpisodeMemory:
         self._act_who.append(who)
 
     def record_reward(self, t: float, r: float) -> None:
-        """Reward ``r`` earned by the simulator step that started at time ``t`` [s]."""
+        """Reward ``r`` earned by the step that ended at time ``t`` [s]."""
         self._check_open()
         if r != 0.0:                      # zeros change no interval sum
             self._rew_t.append(float(t))
@@ -107,6 +113,14 @@ class EpisodeMemory:
         self.reached = bool(reached)
 
     # ------------------------------------------------------------------ reading
+
+    @property
+    def duration(self) -> float:
+        """``t_end - t_start`` [s] (``t_start`` is 0 unless the memory was cut from a
+        :class:`StreamBuffer`)."""
+        if self.t_end is None:
+            raise RuntimeError('the episode has not ended')
+        return self.t_end - self.t_start
 
     @property
     def ended(self) -> bool:
@@ -139,3 +153,93 @@ class EpisodeMemory:
     def index(self, module: str) -> int:
         """Index of ``module`` in :attr:`module_names` (as in :meth:`actions`)."""
         return self._index[module]
+
+
+class StreamBuffer:
+    """Timestamped records from several streams, in any arrival order, cut into episodes.
+
+    The learner node receives decisions (module proposals), actions (the arbiter's) and
+    rewards (the robot's) on separate topics, with no order across topics, and records of the
+    next episode may arrive before the current one is closed. Records are kept sorted by time;
+    :meth:`cut` takes one episode out.
+
+    Parameters
+    ----------
+    module_names : sequence of str
+        Names of the modules that may record decisions or act.
+    """
+
+    def __init__(self, module_names: Sequence[str]) -> None:
+        self.module_names = tuple(module_names)
+        self._index = {n: i for i, n in enumerate(self.module_names)}
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget everything."""
+        self._dec: dict[str, list[tuple[float, np.ndarray]]] = {n: [] for n in self.module_names}
+        self._act: list[tuple[float, np.ndarray, str]] = []
+        self._rew: list[tuple[float, float]] = []
+
+    def add_decision(self, module: str, t: float, b: ArrayLike) -> None:
+        """Module ``module`` decided at ``t`` [s] with features ``b``, shape (n,) (not copied:
+        do not modify it afterwards)."""
+        _insert(self._dec[module], (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
+
+    def add_action(self, t: float, u: ArrayLike, behaviour: str) -> None:
+        """From ``t`` [s] the robot executes ``u`` proposed by module ``behaviour``."""
+        if behaviour not in self._index:
+            raise KeyError(f'unknown behaviour module {behaviour!r}')
+        _insert(self._act, (float(t), np.array(u, dtype=np.float64).reshape(2), behaviour))
+
+    def add_reward(self, t: float, r: float) -> None:
+        """Reward ``r`` of the step that ended at ``t`` [s] (zeros are not kept)."""
+        if r != 0.0:
+            _insert(self._rew, (float(t), float(r)))
+
+    def cut(self, t0: float, t_end: float, reached: bool,
+            memory: EpisodeMemory | None = None) -> EpisodeMemory:
+        """The episode that started at ``t0`` and ended at ``t_end`` [s], as a memory.
+
+        Decisions and actions with ``t0 <= t < t_end`` and rewards with ``t0 < t <= t_end``
+        go into it; every record up to ``t_end`` (older ones too: an episode never cut) is then
+        dropped, the later ones are kept for the next episode.
+
+        Parameters
+        ----------
+        memory : EpisodeMemory, optional
+            Cleared and filled (reused); a new one by default.
+        """
+        mem = EpisodeMemory(self.module_names) if memory is None else memory
+        mem.clear()
+        mem.t_start = float(t0)
+        lo, hi = t0 - TIME_TOL, t_end - TIME_TOL
+        for name, items in self._dec.items():
+            for t, b in _take(items, lo, hi):
+                mem.record_decision(name, t, b)
+        for t, u, who in _take(self._act, lo, hi):
+            mem.record_action(t, u, who)
+        for t, r in _take(self._rew, t0 + TIME_TOL, t_end + TIME_TOL):
+            mem.record_reward(t, r)
+        mem.end(t_end, reached)
+        return mem
+
+
+def _insert(items: list, item: tuple) -> None:
+    """Append ``item`` keeping ``items`` sorted by time (stable: arrival order at equal t)."""
+    if not items or item[0] >= items[-1][0]:
+        items.append(item)
+        return
+    k = len(items)
+    while k > 0 and items[k - 1][0] > item[0]:
+        k -= 1
+    items.insert(k, item)
+
+
+def _take(items: list, lo: float, hi: float) -> list:
+    """Remove the records with time < ``hi`` from ``items``; return those >= ``lo``."""
+    k = 0
+    while k < len(items) and items[k][0] < hi:
+        k += 1
+    head = items[:k]
+    del items[:k]
+    return [it for it in head if it[0] >= lo]

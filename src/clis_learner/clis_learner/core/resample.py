@@ -12,9 +12,10 @@ interpolation to estimate them."
   condition, give the identity on either method); queries after the last knot hold the last
   command (it stays in force until the end; a spline would extrapolate); queries before the
   first knot take the first command.
-* :func:`sum_rewards` -- the reward of each interval ``[t_l, t_{l+1})`` of module i's grid, the
-  last one ``[t_L, end]``: ``r(t + tau_i)`` of (8) and (9). Rewards before ``t_0`` go to the
-  first interval, so the total is always preserved.
+* :func:`sum_rewards` -- the reward of each interval ``(t_l, t_{l+1}]`` of module i's grid,
+  the last one ``(t_L, end]``: ``r(t + tau_i)`` of (8) and (9), with each reward stamped at the
+  end of the step that earned it (:mod:`~clis_learner.core.memory`). Rewards at or before
+  ``t_0`` go to the first interval, so the total is always preserved.
 * :func:`latest_index` -- index of the latest grid time ``<= t`` (the behaviour's decision in
   force, whose features give ``pi_i'`` in (7)).
 
@@ -88,12 +89,12 @@ def resample_actions(t_knots: ArrayLike, u_knots: ArrayLike, t_query: ArrayLike,
 
 
 def sum_rewards(t_rewards: ArrayLike, rewards: ArrayLike, t_grid: ArrayLike) -> np.ndarray:
-    """Reward of each interval ``[t_l, t_{l+1})`` of the grid (module docstring).
+    """Reward of each interval ``(t_l, t_{l+1}]`` of the grid (module docstring).
 
     Parameters
     ----------
     t_rewards : array_like, shape (R,)
-        Reward times (start of the simulator step that earned it).
+        Reward times (end of the step that earned each).
     rewards : array_like, shape (R,)
     t_grid : array_like, shape (L,)
         Module i's decision times, increasing, L >= 1.
@@ -104,6 +105,8 @@ def sum_rewards(t_rewards: ArrayLike, rewards: ArrayLike, t_grid: ArrayLike) -> 
         Interval sums; ``sum`` equals ``sum(rewards)``.
     """
     t_grid = np.asarray(t_grid, dtype=np.float64)
-    idx = latest_index(t_grid, t_rewards)
+    # latest grid time strictly before the reward's stamp (within the tolerance)
+    idx = np.maximum(np.searchsorted(
+        t_grid, np.asarray(t_rewards, dtype=np.float64) - TIME_TOL, side='left') - 1, 0)
     return np.bincount(idx, weights=np.asarray(rewards, dtype=np.float64),
                        minlength=len(t_grid)).astype(np.float64)

@@ -1,13 +1,19 @@
 """Headless runner: a discrete-event loop that drives the simulator, the modules, the arbiter and
 the learner at the simulator tick, as fast as the CPU allows, reproducibly per seed.
 
+It is one of the two schedulers of the same cores (the other is the ROS node graph): each module
+decides through its :class:`~clis_modules.core.decider.Decider`, the arbiter selects through the
+:class:`~clis_modules.core.arbiter.Selector`, and the learner's
+:class:`~clis_learner.core.memory.StreamBuffer` turns the timestamped records into the episode
+that :class:`~clis_learner.core.learner.Learner` learns from. Only where the inputs come from
+and when differs: here every record is made by this loop, in the nodes it arrives as a message.
+
 Time (DESIGN.md §6): the simulator advances in ticks of ``episode.dt`` (50 ms). Module ``i``
 decides at every tick ``k`` with ``k mod n_i = 0``, ``n_i = tau_i / dt`` (5, 10, 24 ticks for
-250/500/1200 ms in **Async**; all 24 in **Sync**). At a decision the module reads the sensors
-of that instant, computes its features ``b_i(x)`` and proposes ``u ~ pi_i(x, .)`` (10), as a
-module node does on its timer. The robot executes the proposal of the selected module, clipped
-to that module's speed limit ``v_max,i = min(1.3, d_react / tau_i)`` (DESIGN.md §3); the
-proposal itself (not clipped) is what the learner's densities see.
+250/500/1200 ms in **Async**; all 24 in **Sync**), reading the sensors of that instant. The
+robot executes the command in force, the acting module's proposal clipped to that module's
+speed limit ``v_max,i = min(1.3, d_react / tau_i)`` (DESIGN.md §3); the proposal itself (not
+clipped) is what the learner's densities see. The reward of a tick is stamped at its end.
 
 Selection (3): ``arbiter.selection = episode`` draws the acting module once, from the values of
 the start state (what (4)-(6) assume); ``decision`` redraws at every tick at which any module
@@ -32,29 +38,26 @@ import re
 import time
 from typing import Any
 
-from clis_modules.core.arbiter import Arbiter, selection_probs
+from clis_modules.core.arbiter import Selector, selection_probs
+from clis_modules.core.decider import Decider, Percept
 from clis_modules.core.modules import CONDITIONS, ModuleCore, make_modules
 from cr_sim.core.arena import Arena, load_arena
-from cr_sim.core.robot import integrate_arc, wheels_to_twist
 from cr_sim.core.sim import SimParams, Simulator, load_sim_params
 from cr_sim.core.starts import draw_start
 import numpy as np
 
 from clis_learner.core.checkpoint import save_checkpoint
 from clis_learner.core.config import ClisParams, load_clis_params, params_hash
+from clis_learner.core.episodes import episode_row
 from clis_learner.core.learner import Learner
-from clis_learner.core.memory import EpisodeMemory
+from clis_learner.core.memory import EpisodeMemory, StreamBuffer
 
 __all__ = ['CONDITIONS', 'Agent', 'run_episode', 'place_selection_map', 'JobSpec', 'JobResult',
            'run_job']
 
-#: Per-module diagnostics of the learner copied into each episode row.
-ROW_DIAGNOSTICS = ('c_final', 'c_median', 'ess', 'rho_mean', 'delta_abs_mean', 'grad_norm',
-                   'n_steps')
-
 
 class Agent:
-    """The CLIS modules of one condition, with their arbiter and learner.
+    """The CLIS modules of one condition, with their deciders, selector and learner.
 
     Parameters
     ----------
@@ -65,10 +68,12 @@ class Agent:
         Landmarks and obstacles for the place module's localization grid.
     rng : np.random.Generator
         Draws the selections and the modules' actions.
+    wheel_base : float
+        Of the robot [m]: wheel velocities to odometry.
     """
 
     def __init__(self, params: ClisParams, condition: str, arena: Arena,
-                 rng: np.random.Generator) -> None:
+                 rng: np.random.Generator, wheel_base: float) -> None:
         self.params = params
         self.condition = condition
         landmarks = np.array([(lm.x, lm.y) for lm in arena.landmarks], float)
@@ -76,14 +81,18 @@ class Agent:
                                                       np.array(arena.box_tuples(), float))
         self.names = [m.name for m in self.modules]
         self.gammas = np.array([m.gamma for m in self.modules])
-        self.arbiter = Arbiter(params.arbiter, params.common.beta, rng)
+        self.deciders = [Decider(m, rng, wheel_base) for m in self.modules]
+        self.selector = Selector(self.names, self.gammas, [m.v_max for m in self.modules],
+                                 [m.period for m in self.modules], params.arbiter,
+                                 params.common.beta, rng)
         self.learner = Learner(self.modules, params)
+        self.buffer = StreamBuffer(self.names)
         self.memory = EpisodeMemory(self.names)
         self.rng = rng
         self.place = next((m for m in self.modules if m.localizer is not None), None)
 
     def values(self, feats: list[np.ndarray]) -> np.ndarray:
-        """``V_i(x)`` of every module at its latest features, shape (N,)."""
+        """``V_i(x)`` of every module at the given features, shape (N,)."""
         return np.array([m.value(b) for m, b in zip(self.modules, feats)])
 
 
@@ -94,85 +103,45 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     Returns
     -------
     dict
-        One row: outcome, who acted, selection probabilities and values at the start, and the
-        learner's per-module diagnostics (``{key}_{module}``).
+        One row (:func:`~clis_learner.core.episodes.episode_row`): outcome, who acted,
+        selection probabilities and values at the start, and the learner's per-module
+        diagnostics (``{key}_{module}``).
     """
-    modules, names = agent.modules, agent.names
+    deciders, names = agent.deciders, agent.names
+    selector, buffer = agent.selector, agent.buffer
     dt = sim.params.episode.dt
-    wheel_base = sim.params.robot.wheel_base
-    every = [max(1, int(round(m.period / dt))) for m in modules]
-    n = len(modules)
-    memory = agent.memory
-    memory.clear()
-    obs = sim.reset(start=start, heading=heading)
-    for m in modules:
-        m.reset()
-    feats: list[np.ndarray] = [np.zeros(0)] * n
-    proposals = np.zeros((n, 2))
-    acted_ticks = np.zeros(n)
-    odo = (0.0, 0.0, 0.0)
-    acting = -1
+    every = [max(1, int(round(d.module.period / dt))) for d in deciders]
+    sim.reset(start=start, heading=heading)
+    for d in deciders:
+        d.reset()
+    localizing = [d for d in deciders if d.localizes]
+    selector.begin_episode(0.0)
     u_exec = np.zeros(2)
-    ret, collisions, k = 0.0, 0, 0
-    p_start = v_start = None
+    k = 0
     while True:
         t = k * dt
-        due = [i for i in range(n) if k % every[i] == 0]
+        due = [d for d, n in zip(deciders, every) if k % n == 0]
         if due:
-            obs = sim.observe()
-            for i in due:
-                m = modules[i]
-                if m.localizer is not None:
-                    if k > 0:
-                        m.localizer.predict(*odo)
-                        odo = (0.0, 0.0, 0.0)
-                    m.localizer.update(obs.landmark_bearings)
-                b = m.features(obs.dest_bearing, obs.d_o, obs.landmark_bearings)
-                feats[i] = b
-                memory.record_decision(m.name, t, b)
-                proposals[i] = m.sample(b, agent.rng)
-            values = agent.values(feats)
-            if k == 0:
-                acting = agent.arbiter.begin_episode(values, agent.gammas)
-                p_start, v_start = agent.arbiter.probs.copy(), values
-            else:
-                acting = agent.arbiter.on_decision(values, agent.gammas)
-            if acting in due or agent.arbiter.mode == 'decision':
-                # (10) the robot executes the acting module's proposal within its speed limit
-                v_max = modules[acting].v_max
-                u_exec = np.clip(proposals[acting], -v_max, v_max)
-                memory.record_action(t, proposals[acting], names[acting])
+            percept = Percept.from_observation(t, sim.observe())
+            proposals = [d.decide(percept) for d in due]
+            for p in proposals:
+                buffer.add_decision(p.module, p.t, p.b)
+            cmd = selector.on_proposals(proposals, t)
+            if cmd is not None:
+                u_exec = cmd.u_exec
+                if cmd.module >= 0:
+                    buffer.add_action(cmd.t, cmd.u, names[cmd.module])
         res = sim.step(u_exec)
-        acted_ticks[acting] += 1
-        memory.record_reward(t, res.reward)
-        ret += res.reward
-        collisions += int(res.collision)
-        if agent.place is not None:
-            v, omega = wheels_to_twist(sim.wheels[0], sim.wheels[1], wheel_base)
-            odo = integrate_arc(*odo, v, omega, dt)
         k += 1
+        buffer.add_reward(k * dt, res.reward)          # stamped at the end of the tick
+        for d in localizing:
+            d.on_wheels(sim.wheels[0], sim.wheels[1], dt)
         if res.done:
             break
-    memory.end(k * dt, res.reached)
+    memory = buffer.cut(0.0, k * dt, res.reached, agent.memory)
     diag = agent.learner.learn(memory, update=learn) if learn else {}
-    shares = acted_ticks / max(acted_ticks.sum(), 1)
-    row: dict[str, Any] = {
-        'start': start if isinstance(start, str) else 'pose', 'reached': int(res.reached),
-        'duration': round(k * dt, 6), 'collisions': collisions, 'ret': round(ret, 6),
-        'behaviour': names[int(np.argmax(acted_ticks))]}
-    for i, name in enumerate(names):
-        row[f'share_{name}'] = float(shares[i])
-        row[f'p_{name}'] = float(p_start[i])
-        row[f'v_{name}'] = float(v_start[i])
-        d = diag.get(name)
-        if d is None:
-            continue
-        for key in ROW_DIAGNOSTICS:
-            row[f'{key}_{name}'] = float(d[key])
-        off_policy = not d['on_policy'] and d['n_steps'] > 0
-        row[f'log10c_{name}'] = (math.log10(max(d['c_final'], 1e-300)) if off_policy
-                                 else math.nan)
-    return row
+    return episode_row(memory, names, selector.start_probs, selector.start_values, diag,
+                       start if isinstance(start, str) else 'pose')
 
 
 def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -> dict | None:
@@ -326,7 +295,8 @@ def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -
     params, sim_params, arena = spec.load()
     sim = Simulator(arena, sim_params, np.random.default_rng([spec.seed, 0]))
     start_rng = np.random.default_rng([spec.seed, 1])
-    agent = Agent(params, spec.condition, arena, np.random.default_rng([spec.seed, 2]))
+    agent = Agent(params, spec.condition, arena, np.random.default_rng([spec.seed, 2]),
+                  sim_params.robot.wheel_base)
     base = {'label': spec.label, 'condition': spec.condition, 'seed': spec.seed}
     episodes, evals = [], []
     for ep in range(spec.episodes):

@@ -10,15 +10,30 @@ When to select is an ambiguity of the paper (DESIGN Sec. 2): ``episode`` (defaul
 module at the episode start from the start-state values and keeps it -- what the importance
 sampling of (4)-(6) assumes, one behaviour policy per episode; ``decision`` redraws at every
 decision of any module, from each module's value at its latest features.
+
+:class:`Selector` is the arbitration over streams of proposals (twist_mux style): it keeps the
+latest :class:`~clis_modules.core.decider.Proposal` of every module, draws by (3) when the
+episode starts (once every module has proposed, or after ``start_timeout``) or at every
+decision, drops a module whose latest proposal is older than ``stale_periods`` of its periods,
+commands a stop when none is fresh, and clips the acting module's proposal to that module's
+speed limit. The headless runner and the arbiter node drive the same object; only where its
+inputs come from differs.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass as plain_dataclass
+from typing import TYPE_CHECKING
 
 from cr_sim.core.params import dataclass, param
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['ArbiterParams', 'selection_probs', 'Arbiter']
+if TYPE_CHECKING:
+    from clis_modules.core.decider import Proposal
+
+__all__ = ['ArbiterParams', 'selection_probs', 'Arbiter', 'Command', 'Selector']
 
 
 @dataclass(frozen=True)
@@ -27,6 +42,10 @@ class ArbiterParams:
 
     selection: str = param(choices=('episode', 'decision'),
                            doc='select once per episode or at every decision')
+    stale_periods: float = param(1.0, 100.0, doc='a module whose latest proposal is older '
+                                 'than this many of its periods is not selectable')
+    start_timeout: float = param(0.0, 60.0, doc='at an episode start, wait at most this long '
+                                 '[s] for every module to propose before drawing')
 
 
 def selection_probs(values: ArrayLike, gammas: ArrayLike, beta: float,
@@ -120,3 +139,175 @@ class Arbiter:
         if available is not None and not np.asarray(available, bool)[self.current]:
             return self._draw(values, gammas, available)
         return self.current
+
+
+@plain_dataclass(frozen=True)
+class Command:
+    """What the robot executes from time ``t`` on (the output of :class:`Selector`).
+
+    Attributes
+    ----------
+    t : float
+        Time from which the command is in force [s] (the decision that produced it).
+    module : int
+        Index of the acting module; -1 when no module is fresh (stop).
+    u : np.ndarray, shape (2,)
+        The acting module's proposal ``(v_left, v_right)`` [m/s], not clipped (zeros on stop).
+    u_exec : np.ndarray, shape (2,)
+        What the wheels get: ``u`` clipped to the acting module's speed limit.
+    drawn : bool
+        Whether a selection by (3) was drawn at this decision (then :attr:`Selector.probs`).
+    """
+
+    t: float
+    module: int
+    u: np.ndarray
+    u_exec: np.ndarray
+    drawn: bool
+
+
+class Selector:
+    """Arbitration over streams of proposals (module docstring).
+
+    Parameters
+    ----------
+    names : sequence of str
+        Module names, in index order.
+    gammas, v_max, periods : array_like, shape (N,)
+        ``gamma_i`` (11), speed limits [m/s] and decision periods [s] of the modules.
+    params : ArbiterParams
+    beta : float
+        Inverse temperature of (3).
+    rng : np.random.Generator
+        Draws the selections.
+
+    Attributes
+    ----------
+    acting : int
+        Index of the acting module (-1 before the first draw of an episode or when stopped).
+    probs, values : np.ndarray or None
+        ``Pr(i | x)`` and ``V_i`` of the last draw, shape (N,).
+    start_probs, start_values : np.ndarray or None
+        The same at the episode's first draw.
+    """
+
+    def __init__(self, names: Sequence[str], gammas: ArrayLike, v_max: ArrayLike,
+                 periods: ArrayLike, params: ArbiterParams, beta: float,
+                 rng: np.random.Generator) -> None:
+        self.names = tuple(names)
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.gammas = np.asarray(gammas, dtype=np.float64)
+        self.v_max = np.asarray(v_max, dtype=np.float64)
+        self.max_age = params.stale_periods * np.asarray(periods, dtype=np.float64)
+        self.start_timeout = params.start_timeout
+        self.arbiter = Arbiter(params, beta, rng)
+        self.latest: list[Proposal | None] = [None] * len(self.names)
+        self.running = False
+        self.waiting = False
+        self.t0 = 0.0
+        self.acting = -1
+        self.values: np.ndarray | None = None
+        self.start_probs: np.ndarray | None = None
+        self.start_values: np.ndarray | None = None
+
+    @property
+    def mode(self) -> str:
+        return self.arbiter.mode
+
+    @property
+    def probs(self) -> np.ndarray | None:
+        return self.arbiter.probs
+
+    def begin_episode(self, t0: float) -> None:
+        """An episode starts at ``t0``: forget the proposals, wait for the first draw."""
+        self.t0 = float(t0)
+        self.latest = [None] * len(self.names)
+        self.running = self.waiting = True
+        self.acting = -1
+        self.arbiter.current = None
+        self.start_probs = self.start_values = None
+
+    def end_episode(self) -> Command:
+        """The episode ended: stop until the next :meth:`begin_episode`."""
+        self.running = self.waiting = False
+        self.acting = -1
+        return self._stop(self.t0)
+
+    def fresh(self, now: float) -> np.ndarray:
+        """Which modules are selectable at ``now``: a proposal of this episode, not older
+        than ``stale_periods`` periods. Shape (N,), bool."""
+        ok = np.zeros(len(self.names), dtype=bool)
+        for i, p in enumerate(self.latest):
+            ok[i] = p is not None and p.t >= self.t0 - 1e-9 and now - p.t <= self.max_age[i]
+        return ok
+
+    def on_proposals(self, proposals: Sequence[Proposal], now: float) -> Command | None:
+        """New proposals (decided at the same instant) at time ``now``; the new command, or
+        None if the command in force does not change."""
+        for p in proposals:
+            self.latest[self.index[p.module]] = p
+        if not self.running or not proposals:
+            return None
+        t = max(p.t for p in proposals)
+        ok = self.fresh(now)
+        if self.waiting:
+            if not ok.all() and now < self.t0 + self.start_timeout:
+                return None
+            return self._draw(t, ok, start=True)
+        due = {self.index[p.module] for p in proposals}
+        if self.mode == 'decision':
+            return self._draw(t, ok, start=False)
+        if not ok[self.acting]:
+            return self._draw(t, ok, start=False)
+        if self.acting in due:
+            return self._command(t, self.acting, drawn=False)
+        return None
+
+    def check(self, now: float) -> Command | None:
+        """Time passes without proposals: draw once the start wait is over; replace an
+        acting module gone stale; stop when no module is fresh."""
+        if not self.running:
+            return None
+        ok = self.fresh(now)
+        if self.waiting:
+            if now >= self.t0 + self.start_timeout and ok.any():
+                return self._draw(now, ok, start=True)
+            return None
+        if self.acting >= 0 and ok[self.acting]:
+            return None
+        if ok.any():
+            return self._draw(now, ok, start=False)
+        if self.acting == -1:
+            return None                                  # already stopped
+        self.acting = -1
+        return self._stop(now)
+
+    # ------------------------------------------------------------------ internals
+
+    def _values(self) -> np.ndarray:
+        return np.array([p.value if p is not None else 0.0 for p in self.latest])
+
+    def _draw(self, t: float, ok: np.ndarray, start: bool) -> Command | None:
+        if not ok.any():
+            if self.acting == -1:
+                return None
+            self.acting = -1
+            return self._stop(t)
+        self.values = self._values()
+        if start:
+            i = self.arbiter.begin_episode(self.values, self.gammas, ok)
+            self.start_probs, self.start_values = self.arbiter.probs.copy(), self.values
+            self.waiting = False
+        else:
+            i = self.arbiter.on_decision(self.values, self.gammas, ok)
+        return self._command(t, i, drawn=True)
+
+    def _command(self, t: float, i: int, drawn: bool) -> Command:
+        self.acting = i
+        u = self.latest[i].u
+        v = self.v_max[i]
+        # the robot executes the acting module's proposal within its speed limit (DESIGN 3)
+        return Command(float(t), i, u, np.clip(u, -v, v), drawn)
+
+    def _stop(self, t: float) -> Command:
+        return Command(float(t), -1, np.zeros(2), np.zeros(2), False)

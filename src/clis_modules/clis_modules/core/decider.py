@@ -1,0 +1,183 @@
+"""One module deciding at its period: sensors -> features -> proposal (paper II-E, Fig. 1).
+
+"Each module determines action *asynchronously*" (paper II-E): at each of its decision times
+``t_l = t_0 + l tau_i`` module i reads the robot's sensors of that instant, forms its state
+``x(t_l)`` and features ``b_i(x)``, and proposes an action ``u ~ pi_i(x, .)`` (10) together with
+its value ``V_i(x) = w_i^T b_i(x)`` (1)(2), by which the arbiter selects (3).
+
+:class:`Decider` is that step, shared by the two schedulers of the project: the headless runner
+(:mod:`clis_learner.core.runner`, a discrete-event loop at the simulator tick) and the module
+nodes (:mod:`clis_modules.module_node`, an rclpy timer of period ``tau_i``). It holds what a
+module carries between decisions: the place module's odometry since its last decision, which is
+applied by the motion update of its Markov localization before the landmark update (paper
+III-D). Everything else is in the :class:`~clis_modules.core.modules.ModuleCore`.
+
+Inputs are plain values (:class:`Percept`, wheel velocities), so a simulator observation or
+decoded ROS messages drive it alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+from cr_sim.core.robot import integrate_arc, wheels_to_twist
+import numpy as np
+from numpy.typing import ArrayLike
+
+from clis_modules.core.modules import ModuleCore
+from clis_modules.core.policy import ACTION_DIM
+
+__all__ = ['Percept', 'Proposal', 'Decider']
+
+
+@dataclass(frozen=True)
+class Percept:
+    """What a module reads of the robot at one instant.
+
+    Attributes
+    ----------
+    t : float
+        Time of the sensor readings [s].
+    dest_bearing : float
+        Bearing of the destination relative to the heading [rad]; NaN = not seen.
+    d_o : float
+        Distance to the nearest obstacle, the smallest IR reading [m].
+    landmark_bearings : np.ndarray, shape (M,)
+        Bearings of the landmarks [rad] in the arena's order; NaN = not seen.
+    """
+
+    t: float
+    dest_bearing: float
+    d_o: float
+    landmark_bearings: np.ndarray
+
+    @classmethod
+    def from_observation(cls, t: float, obs) -> Percept:
+        """From a :class:`cr_sim.core.sim.Observation` (any object with its fields)."""
+        return cls(t, obs.dest_bearing, obs.d_o, obs.landmark_bearings)
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A module's decision at time ``t`` (what a module node publishes).
+
+    Attributes
+    ----------
+    module : str
+        The module's name.
+    t : float
+        Time of the sensor readings the decision used [s]: the decision time ``t_l``.
+    b : np.ndarray, shape (n,)
+        Features ``b_i(x(t_l))``.
+    u : np.ndarray, shape (2,)
+        Proposed ``(v_left, v_right)`` [m/s] drawn from (10), not clipped to the speed limit
+        (the learner's densities are of this action).
+    mean : np.ndarray, shape (2,)
+        Policy mean ``v_max W_i b`` [m/s].
+    sigma : float
+        Policy standard deviation at ``b`` [m/s].
+    value : float
+        ``V_i(x(t_l)) = w_i^T b`` (1)(2).
+    version : int
+        Version of the parameters the decision used (learned episodes; 0 = initial).
+    """
+
+    module: str
+    t: float
+    b: np.ndarray
+    u: np.ndarray
+    mean: np.ndarray
+    sigma: float
+    value: float
+    version: int = 0
+
+
+class Decider:
+    """Module i's decisions within one episode (module docstring).
+
+    Parameters
+    ----------
+    module : ModuleCore
+        The module (its parameters may be replaced between episodes).
+    rng : np.random.Generator
+        Draws the proposals (two standard normals per decision).
+    wheel_base : float
+        Distance between the wheels [m], to turn wheel velocities into odometry.
+    """
+
+    def __init__(self, module: ModuleCore, rng: np.random.Generator,
+                 wheel_base: float) -> None:
+        self.module = module
+        self.rng = rng
+        self.wheel_base = float(wheel_base)
+        self.version = 0
+        self.reset()
+
+    @property
+    def name(self) -> str:
+        return self.module.name
+
+    @property
+    def localizes(self) -> bool:
+        """Whether the module integrates odometry (the place module)."""
+        return self.module.localizer is not None
+
+    def reset(self) -> None:
+        """Episode start: the place module forgets its pose (uniform belief, paper III-D)."""
+        self.module.reset()
+        self._odo = (0.0, 0.0, 0.0)
+        self._first = True
+
+    def on_wheels(self, v_left: float, v_right: float, dt: float) -> None:
+        """The robot drove the wheel velocities ``(v_left, v_right)`` [m/s] for ``dt`` [s].
+
+        The place module composes them into one displacement in the robot frame at its last
+        decision (odometry), used by the next motion update; other modules ignore them.
+        """
+        if self.module.localizer is None:
+            return
+        v, omega = wheels_to_twist(v_left, v_right, self.wheel_base)
+        self._odo = integrate_arc(*self._odo, v, omega, dt)
+
+    def decide(self, percept: Percept) -> Proposal:
+        """Decide at ``percept.t``: features, then ``u ~ pi_i(x, .)`` (10) and ``V_i(x)``."""
+        m = self.module
+        loc = m.localizer
+        if loc is not None:
+            if not self._first:
+                # paper III-D: b(x') <- sum_x Pr(x' | x, u) b(x), u = odometry since the last
+                # decision (none before the first decision of an episode)
+                loc.predict(*self._odo)
+                self._odo = (0.0, 0.0, 0.0)
+            # paper III-D: b(x) <- eta Pr(s | x) b(x)
+            loc.update(percept.landmark_bearings)
+        self._first = False
+        b = m.features(percept.dest_bearing, percept.d_o, percept.landmark_bearings)
+        mean = m.policy.mean(b)
+        sigma = m.policy.sigma_at(b)
+        # (10) u ~ N(v_max W_i b, sigma_i^2 I)
+        u = mean + sigma * self.rng.standard_normal(ACTION_DIM)
+        # (1)(2) V_i(x) = w_i^T b_i(x)
+        value = m.value(b)
+        return Proposal(m.name, float(percept.t), b, u, mean, float(sigma), float(value),
+                        self.version)
+
+    def set_parameters(self, w: ArrayLike, W: ArrayLike, sigma: float,  # noqa: N803
+                       version: int) -> None:
+        """Replace the module's learned parameters (between episodes): value weights ``w``
+        (n,), policy weights ``W`` (2, n), ``sigma``; validated before anything changes."""
+        m = self.module
+        w = np.asarray(w, dtype=np.float64)
+        W = np.asarray(W, dtype=np.float64)  # noqa: N806
+        if w.shape != (m.n,) or W.shape != (2, m.n):
+            raise ValueError(f'{m.name}: parameters of shape w {w.shape}, W {W.shape} do not '
+                             f'fit n = {m.n} features (same condition and config?)')
+        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(W)) and math.isfinite(sigma)
+                and sigma > 0.0):
+            raise ValueError(f'{m.name}: non-finite parameters or sigma <= 0')
+        m.w = w
+        if m.learned:
+            m.W = W
+            m.sigma = sigma
+        self.version = int(version)

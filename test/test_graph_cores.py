@@ -1,0 +1,198 @@
+"""The cores shared by the headless runner and the node graph: Decider, Selector, StreamBuffer,
+episode rows. No ROS: each is driven the way a node drives it (records in any order, stale
+streams) and checked against hand-computed results."""
+
+from __future__ import annotations
+
+import math
+
+from clis_learner.core.config import load_clis_params
+from clis_learner.core.episodes import acting_shares, episode_row
+from clis_learner.core.memory import EpisodeMemory, StreamBuffer
+from clis_modules.core.arbiter import ArbiterParams, Selector, selection_probs
+from clis_modules.core.decider import Decider, Percept, Proposal
+from clis_modules.core.modules import make_modules
+from cr_sim.core.robot import integrate_arc, wheels_to_twist
+import numpy as np
+import pytest
+
+LANDMARKS = np.array([[1.5, 0.75], [-0.75, 1.5], [-1.5, -0.75], [0.75, -1.5]])
+WHEEL_BASE = 0.16
+
+
+@pytest.fixture(scope='module')
+def params():
+    return load_clis_params()
+
+
+# ------------------------------------------------------------------------------ Decider
+
+def test_decider_proposes_from_the_policy_and_the_value(params):
+    view = make_modules(params, 'view', LANDMARKS, 1.5)[0]
+    view.W = np.random.default_rng(0).normal(size=view.W.shape)
+    view.w = np.linspace(-1, 1, view.n)
+    d = Decider(view, np.random.default_rng(7), WHEEL_BASE)
+    p = d.decide(Percept(2.5, 0.3, 0.2, np.full(4, np.nan)))
+    b = view.features(0.3, 0.2)
+    expected_u = view.sample(b, np.random.default_rng(7))     # same two normals
+    assert p.module == 'view' and p.t == 2.5 and p.version == 0
+    assert np.array_equal(p.b, b) and np.array_equal(p.u, expected_u)
+    assert p.mean == pytest.approx(view.policy_mean(b)) and p.sigma == view.sigma
+    assert p.value == pytest.approx(float(view.w @ b))
+
+
+def test_decider_place_odometry_reaches_the_motion_update(params):
+    """Odometry of the wheels since the last decision is the motion update of the next one;
+    none before the first decision of an episode (a reset forgets it)."""
+    place = make_modules(params, 'place', LANDMARKS, 1.5)[0]
+    twin = make_modules(params, 'place', LANDMARKS, 1.5)[0]
+    d = Decider(place, np.random.default_rng(0), WHEEL_BASE)
+    bearings = np.array([0.3, 1.9, -2.8, -1.2])
+    d.on_wheels(0.2, 0.2, 0.05)                 # before the episode's first decision: dropped
+    d.reset()
+    d.decide(Percept(0.0, math.nan, 0.5, bearings))
+    twin.localizer.update(bearings)
+    odo = (0.0, 0.0, 0.0)
+    for vl, vr in [(0.1, 0.12)] * 10 + [(0.05, -0.05)] * 4:
+        d.on_wheels(vl, vr, 0.05)
+        odo = integrate_arc(*odo, *wheels_to_twist(vl, vr, WHEEL_BASE), 0.05)
+    p = d.decide(Percept(0.7, math.nan, 0.5, bearings))
+    twin.localizer.predict(*odo)
+    twin.localizer.update(bearings)
+    assert np.array_equal(p.b, twin.localizer.belief)
+    d.reset()
+    assert np.array_equal(place.localizer.belief, place.localizer._uniform.reshape(-1))
+
+
+def test_decider_set_parameters_validates_before_changing(params):
+    view = make_modules(params, 'view', LANDMARKS, 1.5)[0]
+    d = Decider(view, np.random.default_rng(0), WHEEL_BASE)
+    w0 = view.w.copy()
+    with pytest.raises(ValueError, match='do not fit'):
+        d.set_parameters(np.zeros(3), np.zeros((2, 3)), 0.1, 5)
+    with pytest.raises(ValueError, match='non-finite'):
+        d.set_parameters(np.full(view.n, np.nan), np.zeros((2, view.n)), 0.1, 5)
+    assert np.array_equal(view.w, w0) and d.version == 0
+    d.set_parameters(np.ones(view.n), np.full((2, view.n), 0.5), 0.2, 5)
+    assert d.version == 5 and view.sigma == 0.2 and np.all(view.W == 0.5)
+
+
+# ------------------------------------------------------------------------------ Selector
+
+def proposal(module: str, t: float, value: float, u=(0.5, -0.5)) -> Proposal:
+    return Proposal(module, t, np.zeros(1), np.array(u, float), np.zeros(2), 0.1, value)
+
+
+def selector(mode: str = 'episode', beta: float = 1.0, seed: int = 0) -> Selector:
+    return Selector(['innate', 'view', 'place'], [0.9, 0.8, 0.7], [0.6, 0.3, 0.125],
+                    [0.25, 0.5, 1.2],
+                    ArbiterParams(selection=mode, stale_periods=1.5, start_timeout=0.5), beta,
+                    np.random.default_rng(seed))
+
+
+def test_selector_waits_for_every_module_then_draws_and_clips():
+    sel = selector(beta=1e4)     # place has by far the best (1 - gamma) V: always chosen
+    sel.begin_episode(10.0)
+    assert sel.on_proposals([proposal('innate', 10.0, 0.0)], 10.0) is None
+    assert sel.on_proposals([proposal('view', 10.0, 0.0)], 10.05) is None
+    cmd = sel.on_proposals([proposal('place', 10.05, 1.0)], 10.1)
+    assert cmd is not None and cmd.module == 2 and cmd.drawn and cmd.t == 10.05
+    assert np.array_equal(cmd.u, [0.5, -0.5]) and np.array_equal(cmd.u_exec, [0.125, -0.125])
+    assert sel.start_probs[2] == pytest.approx(1.0)
+    # proposals of a module that does not act change nothing; the acting one's do
+    assert sel.on_proposals([proposal('innate', 10.25, 0.0)], 10.25) is None
+    cmd = sel.on_proposals([proposal('place', 11.25, 1.0, u=(0.1, 0.0))], 11.25)
+    assert cmd.module == 2 and not cmd.drawn and np.array_equal(cmd.u_exec, [0.1, 0.0])
+
+
+def test_selector_start_timeout_draws_among_those_that_proposed():
+    sel = selector()
+    sel.begin_episode(0.0)
+    assert sel.on_proposals([proposal('innate', 0.0, 0.0)], 0.0) is None
+    assert sel.on_proposals([proposal('innate', 0.25, 0.0)], 0.25) is None
+    assert sel.check(0.3) is None                           # still waiting
+    cmd = sel.check(0.5)
+    assert cmd.module == 0 and cmd.drawn and sel.start_probs.tolist() == [1.0, 0.0, 0.0]
+
+
+def test_selector_drops_a_stale_module_and_stops_when_none_is_fresh():
+    sel = selector(beta=1e4)
+    sel.begin_episode(0.0)
+    sel.on_proposals([proposal('innate', 0.0, 0.0), proposal('view', 0.0, 0.0),
+                      proposal('place', 0.0, 1.0)], 0.0)
+    assert sel.acting == 2
+    sel.on_proposals([proposal('innate', 1.7, 0.0), proposal('view', 1.7, 0.0)], 1.7)
+    assert sel.check(1.79) is None                          # place fresh for 1.5 x 1.2 s
+    cmd = sel.check(1.81)
+    assert cmd is not None and cmd.module in (0, 1) and cmd.drawn
+    assert sel.check(1.9) is None
+    stop = sel.check(3.0)                                  # innate and view stale too
+    assert stop.module == -1 and np.array_equal(stop.u_exec, [0.0, 0.0])
+    assert sel.check(3.1) is None                           # stopped once
+    cmd = sel.on_proposals([proposal('view', 3.2, 0.0)], 3.2)
+    assert cmd.module == 1                                  # a fresh module drives again
+
+
+def test_selector_decision_mode_frequencies_follow_eq_3():
+    sel = selector(mode='decision', beta=50.0, seed=3)
+    values = {'innate': 0.0, 'view': 0.1, 'place': 0.2}
+    gammas = np.array([0.9, 0.8, 0.7])
+    sel.begin_episode(0.0)
+    sel.on_proposals([proposal(m, 0.0, v) for m, v in values.items()], 0.0)
+    counts = np.zeros(3)
+    for k in range(1, 4001):
+        cmd = sel.on_proposals([proposal('innate', k * 0.01, values['innate'])], k * 0.01)
+        counts[cmd.module] += 1
+        sel.latest[1] = proposal('view', k * 0.01, values['view'])     # keep all fresh
+        sel.latest[2] = proposal('place', k * 0.01, values['place'])
+    p = selection_probs(list(values.values()), gammas, 50.0)
+    assert counts / counts.sum() == pytest.approx(p, abs=0.025)
+
+
+# ------------------------------------------------------------------------------ StreamBuffer
+
+def test_stream_buffer_cuts_episodes_from_records_in_any_order():
+    buf = StreamBuffer(['innate', 'view'])
+    # the end of a previous episode the learner never closed, then episode [100, 101.5]
+    buf.add_decision('innate', 99.0, [9.0])
+    buf.add_reward(99.5, -0.1)
+    buf.add_decision('view', 100.5, [2.0])                 # arrives before older records
+    buf.add_decision('view', 100.0, [1.0])
+    buf.add_reward(100.05, -0.1)
+    buf.add_action(100.25, [0.2, 0.2], 'innate')
+    buf.add_action(100.0, [0.1, 0.1], 'innate')
+    buf.add_decision('innate', 100.0, [3.0])
+    buf.add_reward(101.5, 1.0)                             # the last tick's reward
+    buf.add_decision('innate', 101.55, [4.0])              # next episode (starts 101.55)
+    buf.add_reward(101.6, -0.1)
+    buf.add_reward(100.5, 0.0)                              # zeros are not kept
+    mem = buf.cut(100.0, 101.5, reached=True)
+    t, B = mem.decisions('view')  # noqa: N806
+    assert t.tolist() == [100.0, 100.5] and B[:, 0].tolist() == [1.0, 2.0]
+    assert mem.decisions('innate')[0].tolist() == [100.0]
+    assert mem.actions()[0].tolist() == [100.0, 100.25]
+    assert mem.rewards()[0].tolist() == [100.05, 101.5] and mem.reached
+    assert mem.duration == pytest.approx(1.5)
+    nxt = buf.cut(101.55, 102.0, reached=False)
+    assert nxt.decisions('innate')[0].tolist() == [101.55]
+    assert nxt.rewards()[1].tolist() == [-0.1] and nxt.actions()[0].size == 0
+
+
+def test_episode_row_from_memory():
+    mem = EpisodeMemory(['innate', 'view'])
+    mem.t_start = 10.0
+    mem.record_action(10.0, [0.1, 0.1], 'view')
+    mem.record_action(12.0, [0.1, 0.1], 'innate')
+    mem.record_reward(11.0, -0.1)
+    mem.record_reward(13.0, 1.0)
+    mem.end(13.0, reached=True)
+    assert acting_shares(mem).tolist() == pytest.approx([1 / 3, 2 / 3])
+    diag = {'view': {'c_final': 1e-5, 'c_median': 1.0, 'ess': 1.0, 'rho_mean': 1.0,
+                     'delta_abs_mean': 0.0, 'grad_norm': 0.0, 'n_steps': 6.0,
+                     'on_policy': 0.0}}
+    row = episode_row(mem, ['innate', 'view'], np.array([0.4, 0.6]), np.array([1.0, 0.0]),
+                      diag, 'A')
+    assert row['reached'] == 1 and row['duration'] == 3.0 and row['collisions'] == 1
+    assert row['ret'] == pytest.approx(0.9) and row['behaviour'] == 'view'
+    assert row['p_view'] == 0.6 and row['v_innate'] == 1.0
+    assert row['log10c_view'] == pytest.approx(-5.0) and 'c_final_innate' not in row
