@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'clis = clis_learner.cli:main',
+            'learner = clis_learner.learner_node:main',
         ],
     },
 )

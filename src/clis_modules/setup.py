@@ -21,6 +21,10 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'innate = clis_modules.module_node:main_innate',
+            'view = clis_modules.module_node:main_view',
+            'place = clis_modules.module_node:main_place',
+            'arbiter = clis_modules.arbiter_node:main',
         ],
     },
 )

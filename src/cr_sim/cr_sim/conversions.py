@@ -123,9 +123,10 @@ def reward_from_msg(msg: Vector3Stamped) -> tuple[float, float, int]:
     return from_time(msg.header.stamp), msg.vector.x, int(msg.vector.z)
 
 
-def episode_msg(event: str, t: float, **values: object) -> DiagnosticArray:
-    """An episode event (``start``, ``reached``, ``timeout``) with key/values."""
-    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=EPISODE_STATUS, message=event,
+def event_msg(name: str, event: str, t: float, **values: object) -> DiagnosticArray:
+    """A stamped event: one DiagnosticStatus named ``name`` with ``message = event`` and the
+    key/values as text (episode events here, the learner's progress in the graph)."""
+    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=event,
                               hardware_id='cr',
                               values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
     msg = DiagnosticArray(status=[status])
@@ -133,10 +134,20 @@ def episode_msg(event: str, t: float, **values: object) -> DiagnosticArray:
     return msg
 
 
-def episode_from_msg(msg: DiagnosticArray) -> tuple[float, str, dict[str, str]]:
+def event_from_msg(msg: DiagnosticArray) -> tuple[float, str, dict[str, str]]:
+    """``(t, event, {key: value text})`` of :func:`event_msg`."""
     status = msg.status[0]
     return from_time(msg.header.stamp), status.message, {kv.key: kv.value
                                                          for kv in status.values}
+
+
+def episode_msg(event: str, t: float, **values: object) -> DiagnosticArray:
+    """An episode event (``start``, ``reached``, ``timeout``, ``reset``) with key/values."""
+    return event_msg(EPISODE_STATUS, event, t, **values)
+
+
+#: Decodes :func:`episode_msg` (any :func:`event_msg`).
+episode_from_msg = event_from_msg
 
 
 def odom_msg(pose: np.ndarray, wheels: np.ndarray, wheel_base: float, t: float,

@@ -45,6 +45,9 @@ class SimNodeParams:
     auto_reset: bool = param(doc='start a new episode when one ends')
     seed: int = param(0, 2**31 - 1, doc='seed of the simulator generator')
     markers_period: float = param(0.05, 60.0, doc='robot marker period (s, sim time)')
+    wait_for_learner: bool = param(doc='after an episode, hold the clock until learner/progress '
+                                   'reports it learned')
+    learner_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for the learner')
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
 
@@ -63,7 +66,8 @@ class SimNode(Node):
         except ConfigError as exc:
             self.get_logger().fatal(str(exc))
             raise
-        self.sim = Simulator(self.arena, self.params, np.random.default_rng(self.cfg.seed))
+        # the same generators as the headless runner's for a seed (clis_learner.core.runner)
+        self.sim = Simulator(self.arena, self.params, np.random.default_rng([self.cfg.seed, 0]))
         self.start_rng = np.random.default_rng([self.cfg.seed, 1])
         self.wheel_base = self.params.robot.wheel_base
         self.u = np.zeros(2)
@@ -72,6 +76,8 @@ class SimNode(Node):
         self._time_offset = 0.0
         self.episode_return = 0.0
         self.next_marker_t = 0.0
+        self.hold: tuple[int, float] | None = None      # (episode, wall deadline) while waiting
+        self.learned = (0, 0)                            # (episode, version) the learner reported
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_clock = self.create_publisher(conv.Clock, '/clock', 10)
@@ -89,6 +95,10 @@ class SimNode(Node):
         self.create_subscription(cmd_type, 'cmd_vel', self._on_cmd, 10)
         from std_srvs.srv import Trigger
         self.create_service(Trigger, 'reset', self._on_reset)
+        if self.cfg.wait_for_learner:
+            self.create_subscription(conv.DiagnosticArray, 'learner/progress', self._on_progress,
+                                     QoSProfile(depth=1,
+                                                durability=DurabilityPolicy.TRANSIENT_LOCAL))
 
         self.pub_arena.publish(conv.arena_markers(
             self.arena.wall_boxes(), self.arena.short_boxes(), self.arena.tall_boxes(),
@@ -111,7 +121,15 @@ class SimNode(Node):
         self.u = conv.wheels_from_cmd(msg, self.wheel_base)
         self.u_time = self.sim.t
 
+    def _on_progress(self, msg) -> None:
+        _, _, values = conv.event_from_msg(msg)
+        try:
+            self.learned = (int(values['episode']), int(values['version']))
+        except (KeyError, ValueError):
+            self.get_logger().warning(f'unreadable learner progress: {values}')
+
     def _on_reset(self, request, response):
+        self.hold = None
         self._end_episode('reset')
         self._start_episode()
         response.success = True
@@ -120,17 +138,38 @@ class SimNode(Node):
 
     def _start_episode(self) -> None:
         if self.episode:
-            self._time_offset += self.sim.t  # /clock stays monotonic across episodes
+            # /clock stays monotonic across episodes, and the next episode starts one tick
+            # after the end, so that every stamp belongs to one episode only
+            self._time_offset += self.sim.t + self.dt
         start, heading = draw_start(self.cfg.start, self.arena, self.start_rng)
         self.sim.reset(start=start, heading=heading)
         self.episode += 1
         self.episode_return = 0.0
         self.u[:] = 0.0
         self.u_time = -np.inf
+        extra = {'params_version': self.learned[1]} if self.cfg.wait_for_learner else {}
         self.pub_episode.publish(conv.episode_msg(
             'start', self.sim_time, episode=self.episode, start=start,
-            pose=' '.join(f'{p:.3f}' for p in self.sim.pose)))
+            pose=' '.join(f'{p:.3f}' for p in self.sim.pose), **extra))
         self._publish_state()
+
+    @property
+    def holding(self) -> bool:
+        """Whether the clock is held, waiting for the learner (``node.wait_for_learner``)."""
+        return self.hold is not None
+
+    def check_hold(self) -> None:
+        """Start the next episode once the learner has reported the last one (or timed out)."""
+        episode, deadline = self.hold
+        if self.learned[0] >= episode:
+            self.hold = None
+        elif time.monotonic() >= deadline:
+            self.get_logger().warning(
+                f'the learner did not report episode {episode} within '
+                f'{self.cfg.learner_timeout} s: starting the next one')
+            self.hold = None
+        if self.hold is None:
+            self._start_episode()
 
     def _end_episode(self, event: str) -> None:
         self.pub_episode.publish(conv.episode_msg(
@@ -151,12 +190,15 @@ class SimNode(Node):
         self._publish_state()
         if res.done:
             self._end_episode('reached' if res.reached else 'timeout')
-            if self.cfg.auto_reset:
+            if self.cfg.auto_reset and self.cfg.wait_for_learner:
+                self.hold = (self.episode, time.monotonic() + self.cfg.learner_timeout)
+            elif self.cfg.auto_reset:
                 self._start_episode()
 
     def _publish_state(self) -> None:
+        """The robot's readings at the current instant, then ``/clock`` (so that a node whose
+        timer fires on this clock tick already has the readings stamped with it)."""
         t = self.sim_time
-        self.pub_clock.publish(conv.clock_msg(t))
         obs = self.sim.observe()
         frame = self.cfg.base_frame
         sensors = self.params.sensors
@@ -171,6 +213,7 @@ class SimNode(Node):
             self.next_marker_t = t + self.cfg.markers_period
             self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
                 self.sim.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
+        self.pub_clock.publish(conv.clock_msg(t))
 
     @property
     def sim_time(self) -> float:
@@ -183,6 +226,11 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     period = node.dt / node.cfg.speed_factor if node.cfg.speed_factor > 0 else 0.0
     next_wall = time.monotonic()
     while rclpy.ok():
+        if node.holding:                  # the clock stands still until the learner reports
+            executor.spin_once(timeout_sec=0.005)
+            node.check_hold()
+            next_wall = time.monotonic()
+            continue
         executor.spin_once(timeout_sec=0.0)
         now = time.monotonic()
         if now < next_wall:

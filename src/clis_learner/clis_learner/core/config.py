@@ -14,8 +14,7 @@ import json
 import os
 from typing import Any
 
-from clis_modules.core.arbiter import ArbiterParams
-from clis_modules.core.modules import CommonParams, InnateParams, PlaceParams, ViewParams
+from clis_modules.core.modules import ModuleSetParams
 from cr_sim.core.params import (
     as_dict,
     dataclass,
@@ -46,14 +45,9 @@ class LearnerParams:
 
 
 @dataclass(frozen=True)
-class ClisParams:
-    """Everything in ``clis.yaml``."""
+class ClisParams(ModuleSetParams):
+    """Everything in ``clis.yaml``: the modules' and arbiter's sections, and the learner's."""
 
-    common: CommonParams = param(doc='section common')
-    innate: InnateParams = param(doc='section innate')
-    view: ViewParams = param(doc='section view')
-    place: PlaceParams = param(doc='section place')
-    arbiter: ArbiterParams = param(doc='section arbiter')
     learner: LearnerParams = param(doc='section learner')
 
 

@@ -40,7 +40,7 @@ from typing import Any
 
 from clis_modules.core.arbiter import Selector, selection_probs
 from clis_modules.core.decider import Decider, Percept
-from clis_modules.core.modules import CONDITIONS, ModuleCore, make_modules
+from clis_modules.core.modules import CONDITIONS, ModuleCore, arena_map, make_modules
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.sim import SimParams, Simulator, load_sim_params
 from cr_sim.core.starts import draw_start
@@ -76,9 +76,7 @@ class Agent:
                  rng: np.random.Generator, wheel_base: float) -> None:
         self.params = params
         self.condition = condition
-        landmarks = np.array([(lm.x, lm.y) for lm in arena.landmarks], float)
-        self.modules: list[ModuleCore] = make_modules(params, condition, landmarks, arena.half,
-                                                      np.array(arena.box_tuples(), float))
+        self.modules: list[ModuleCore] = make_modules(params, condition, *arena_map(arena))
         self.names = [m.name for m in self.modules]
         self.gammas = np.array([m.gamma for m in self.modules])
         self.deciders = [Decider(m, rng, wheel_base) for m in self.modules]

@@ -45,10 +45,11 @@ from collections.abc import Sequence
 import math
 from typing import Any, Protocol
 
-from cr_sim.core.params import dataclass, param
+from cr_sim.core.params import dataclass, load_params, param
 import numpy as np
 from numpy.typing import ArrayLike
 
+from clis_modules.core.arbiter import ArbiterParams
 from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.localization import LocalizationParams, MarkovLocalizer
 from clis_modules.core.policy import GaussianPolicy
@@ -56,8 +57,9 @@ from clis_modules.core.value import LinearValue, gamma_i
 
 __all__ = [
     'CONDITIONS', 'MODULE_NAMES', 'CommonParams', 'ValueParams', 'PolicyParams', 'InnateParams',
-    'ViewParams', 'PlaceParams', 'ModuleCore', 'speed_limit', 'module_gamma',
-    'innate_target_mean', 'make_innate', 'make_view', 'make_place', 'make_modules',
+    'ViewParams', 'PlaceParams', 'ModuleSetParams', 'load_module_params', 'ModuleCore',
+    'speed_limit', 'module_gamma', 'condition_periods', 'innate_target_mean', 'make_innate',
+    'make_view', 'make_place', 'make_modules', 'make_module', 'arena_map',
 ]
 
 #: Module names, in the canonical order (index = module id in memories and diagnostics).
@@ -147,6 +149,26 @@ class PlaceParams:
     policy: PolicyParams = param(doc='section place.policy')
 
 
+@dataclass(frozen=True)
+class ModuleSetParams:
+    """The sections of ``config/clis.yaml`` that the modules and the arbiter read (the learner
+    reads them too, plus its own: ``clis_learner.core.config.ClisParams``)."""
+
+    common: CommonParams = param(doc='section common')
+    innate: InnateParams = param(doc='section innate')
+    view: ViewParams = param(doc='section view')
+    place: PlaceParams = param(doc='section place')
+    arbiter: ArbiterParams = param(doc='section arbiter')
+
+
+def load_module_params(path: str | None = None, overrides: dict | None = None
+                       ) -> ModuleSetParams:
+    """:class:`ModuleSetParams` from ``/**: ros__parameters:`` of ``clis.yaml`` (or ``path``),
+    validated (a bad value raises ``ConfigError`` naming the file and the dotted key)."""
+    return load_params(ModuleSetParams, 'clis.yaml', '/**', path, overrides,
+                       ignore=('learner',))
+
+
 class ModuleParamsLike(Protocol):
     """What :func:`make_modules` reads (``clis_learner.core.config.ClisParams`` has it)."""
 
@@ -166,6 +188,20 @@ def speed_limit(common: CommonParams, period: float) -> float:
 def module_gamma(common: CommonParams, period: float) -> float:
     """Semi-MDP discount of a module with period ``period``, eq. (11) (:func:`gamma_i`)."""
     return gamma_i(common.gamma, period, common.base_tick)
+
+
+def condition_periods(params: ModuleParamsLike, condition: str) -> list[tuple[str, float]]:
+    """``(name, tau_i)`` of the modules of a condition (paper Sec. IV, DESIGN Sec. 3): one module
+    on its own period, all three on their own periods (``async``) or all on the slowest one
+    (``sync``); in the order innate, view, place."""
+    if condition not in CONDITIONS:
+        raise ValueError(f'unknown condition {condition!r}: choose from {", ".join(CONDITIONS)}')
+    own = {'innate': params.innate.period, 'view': params.view.period,
+           'place': params.place.period}
+    names: Sequence[str] = MODULE_NAMES if condition in ('sync', 'async') else (condition,)
+    if condition == 'sync':
+        return [(name, max(own.values())) for name in names]
+    return [(name, own[name]) for name in names]
 
 
 def innate_target_mean(theta_d: ArrayLike, forward: float, turn_angle: float) -> np.ndarray:
@@ -378,6 +414,13 @@ def make_place(prm: PlaceParams, common: CommonParams, landmarks_xy: ArrayLike,
         LinearValue(loc.size, prm.value.v_init), prm.value, prm.policy, localizer=loc)
 
 
+def arena_map(arena: Any) -> tuple[np.ndarray, float, np.ndarray]:
+    """What the modules know of an arena (``cr_sim.core.arena.Arena``): landmark positions
+    (M, 2), the floor's half side [m], obstacle boxes (K, 4)."""
+    landmarks = np.array([(lm.x, lm.y) for lm in arena.landmarks], dtype=np.float64)
+    return landmarks, float(arena.half), np.array(arena.box_tuples(), dtype=np.float64)
+
+
 def make_modules(params: ModuleParamsLike, condition: str, landmarks_xy: ArrayLike,
                  half_size: float, boxes: ArrayLike | None = None) -> list[ModuleCore]:
     """The modules of one experimental condition (paper Sec. IV, DESIGN Sec. 3).
@@ -402,19 +445,18 @@ def make_modules(params: ModuleParamsLike, condition: str, landmarks_xy: ArrayLi
     list of ModuleCore
         In the order innate, view, place (those present).
     """
-    if condition not in CONDITIONS:
-        raise ValueError(f'unknown condition {condition!r}: choose from {", ".join(CONDITIONS)}')
-    names: Sequence[str] = MODULE_NAMES if condition in ('sync', 'async') else (condition,)
-    period = None
-    if condition == 'sync':
-        period = max(params.innate.period, params.view.period, params.place.period)
-    out = []
-    for name in names:
-        if name == 'innate':
-            out.append(make_innate(params.innate, params.common, period))
-        elif name == 'view':
-            out.append(make_view(params.view, params.common, period))
-        else:
-            out.append(make_place(params.place, params.common, landmarks_xy, half_size, boxes,
-                                  period))
-    return out
+    return [make_module(params, name, period, landmarks_xy, half_size, boxes)
+            for name, period in condition_periods(params, condition)]
+
+
+def make_module(params: ModuleParamsLike, name: str, period: float, landmarks_xy: ArrayLike,
+                half_size: float, boxes: ArrayLike | None = None) -> ModuleCore:
+    """One module by name, with decision period ``period`` (:func:`condition_periods`);
+    the other arguments as for :func:`make_modules`."""
+    if name == 'innate':
+        return make_innate(params.innate, params.common, period)
+    if name == 'view':
+        return make_view(params.view, params.common, period)
+    if name == 'place':
+        return make_place(params.place, params.common, landmarks_xy, half_size, boxes, period)
+    raise ValueError(f'unknown module {name!r}: one of {", ".join(MODULE_NAMES)}')

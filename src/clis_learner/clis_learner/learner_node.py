@@ -1,0 +1,224 @@
+"""``ros2 run clis_learner learner``: trains every module from every episode (paper II-B..E).
+
+Subscribes to the streams the paper's learning thread reads: every module's proposals
+(``<module>/proposal``: its decision times and features ``b_i(x)``), the executed commands
+(``arbiter/action``: who acted and its proposal), the arbiter's draws (``arbiter/selection``),
+the rewards (``reward``, stamped at the end of the step that earned them) and the ``episode``
+events. The records go into a :class:`~clis_learner.core.memory.StreamBuffer` in whatever
+order they arrive; when an episode ends (and its last reward has arrived, or
+``learner_node.close_timeout`` s of wall time passed) the buffer is cut into that episode's
+memory and the same :class:`~clis_learner.core.learner.Learner` as the headless runner resamples
+it to each module's grid and applies (7)-(9), (11).
+
+After each learned episode, in this order: the parameters are checkpointed atomically
+(``OUT/checkpoint.npz``), published on ``<module>/params`` (transient local, so a module that
+restarts gets them at once; ``version`` = episodes learned), the episode's row is appended to
+``OUT/episodes.csv`` and published on ``~/progress`` (diagnostic_msgs/DiagnosticArray,
+transient local: episode, reached, return, who acted, Pr(i|x_0), diagnostics). An episode whose
+start the learner did not see (it started late or was restarted) is not learned; its progress
+says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+import time
+
+from clis_modules.core.modules import arena_map, make_modules
+from clis_modules.graph_node import GraphNode, run_node
+from clis_modules.module_node import END_EVENTS, LATCHED, PARAMS_QOS
+from cr_sim.core.params import ConfigError, dataclass, param
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Vector3Stamped
+from rclpy.clock import Clock, ClockType
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import JointState
+
+from clis_learner.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from clis_learner.core.config import ClisParams, params_hash
+from clis_learner.core.episodes import episode_row
+from clis_learner.core.learner import Learner
+from clis_learner.core.memory import TIME_TOL, EpisodeMemory, StreamBuffer
+from clis_modules import conversions as mconv
+from cr_sim import conversions as rconv
+
+__all__ = ['LearnerNodeParams', 'LearnerNode', 'PROGRESS_STATUS', 'main']
+
+#: ``name`` of the learner's progress status.
+PROGRESS_STATUS = 'learner'
+PROGRESS_QOS = QoSProfile(depth=1, durability=LATCHED.durability)
+
+
+@dataclass(frozen=True)
+class LearnerNodeParams:
+    """Settings of the learner node (``config/graph.yaml``, section ``learner_node``)."""
+
+    out_dir: str = param(doc="folder for episodes.csv and checkpoint.npz; '' = none")
+    resume: str = param(doc="checkpoint to start from; '' = the initial parameters")
+    close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the last reward')
+    close_grace: float = param(0.0, 10.0, doc='wall seconds to wait for records in flight')
+
+
+class LearnerNode(GraphNode):
+    """Thin glue around a :class:`StreamBuffer` and a :class:`Learner` (module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__('learner', 'learner_node', LearnerNodeParams, clis_cls=ClisParams)
+        self.modules = make_modules(self.clis, self.graph.condition, *arena_map(self.arena()))
+        self.names = [m.name for m in self.modules]
+        self.min_period = min(m.period for m in self.modules)
+        self.learner = Learner(self.modules, self.clis)
+        self.buffer = StreamBuffer(self.names)
+        self.memory = EpisodeMemory(self.names)
+        self.hash = params_hash(self.clis)
+        self.version = 0
+        if self.cfg.resume:
+            try:
+                meta = load_checkpoint(self.cfg.resume, self.modules, self.hash)
+            except CheckpointError as exc:
+                raise ConfigError(f'learner_node.resume: {exc}') from None
+            self.version = int(meta['extra'].get('version', 0))
+            self.get_logger().info(f'resumed from {self.cfg.resume}: version {self.version}')
+        self.out = Path(self.cfg.out_dir) if self.cfg.out_dir else None
+        if self.out is not None:
+            self.out.mkdir(parents=True, exist_ok=True)
+        self.episode: dict | None = None        # the running episode (seen from its start)
+        self.closing: dict | None = None        # the ended episode waiting for its records
+        self.first_reward_t = math.inf          # stamp of the first reward this process got
+        self.reward_t = -math.inf               # newest reward stamp (the watermark)
+
+        self.pub_params = {name: self.create_publisher(JointState, f'{name}/params',
+                                                       PARAMS_QOS) for name in self.names}
+        self.pub_progress = self.create_publisher(DiagnosticArray, '~/progress', PROGRESS_QOS)
+        for name in self.names:
+            self.create_subscription(JointState, f'{name}/proposal', self._on_proposal, 50)
+        self.create_subscription(JointState, 'arbiter/action', self._on_action, 50)
+        self.create_subscription(JointState, 'arbiter/selection', self._on_selection, 50)
+        self.create_subscription(Vector3Stamped, 'reward', self._on_reward, 100)
+        self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
+        self.create_timer(0.005, self._on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._publish_params(0.0)
+        self.get_logger().info(
+            f'learner: condition {self.graph.condition}, modules {", ".join(self.names)}, '
+            f'correction {self.clis.learner.correction}, out {self.out or "-"}')
+
+    # ------------------------------------------------------------------ streams
+
+    def _on_proposal(self, msg: JointState) -> None:
+        try:
+            p = mconv.proposal_from_msg(msg)
+            self.buffer.add_decision(p.module, p.t, p.b)
+        except (ValueError, KeyError) as exc:
+            self.get_logger().error(f'ignored proposal: {exc}')
+            return
+        if self.episode is not None and p.t >= self.episode['t0'] - TIME_TOL \
+                and p.version != self.version:
+            self.episode['stale'] += 1
+
+    def _on_action(self, msg: JointState) -> None:
+        t, u, acting = mconv.action_from_msg(msg)
+        if acting:                                          # '' = a stop: nobody acts
+            self.buffer.add_action(t, u, acting)
+
+    def _on_selection(self, msg: JointState) -> None:
+        t, _, probs, values = mconv.selection_from_msg(msg)
+        ep = self.episode
+        if ep is not None and ep['probs'] is None and t >= ep['t0'] - TIME_TOL:
+            ep['probs'] = [probs.get(n, math.nan) for n in self.names]
+            ep['values'] = [values.get(n, math.nan) for n in self.names]
+
+    def _on_reward(self, msg: Vector3Stamped) -> None:
+        t, r, _ = rconv.reward_from_msg(msg)
+        self.first_reward_t = min(self.first_reward_t, t)
+        self.reward_t = max(self.reward_t, t)
+        self.buffer.add_reward(t, r)
+
+    def _on_episode(self, msg: DiagnosticArray) -> None:
+        t, event, values = rconv.episode_from_msg(msg)
+        index = int(values.get('episode', -1))
+        if event == 'start':
+            if self.closing is not None:
+                self._close()
+            self.episode = {'index': index, 't0': t, 'start': values.get('start', ''),
+                            'probs': None, 'values': None, 'stale': 0}
+        elif event in END_EVENTS:
+            if self.episode is not None and self.episode['index'] == index:
+                now = time.monotonic()
+                self.closing = {'t_end': t, 'reached': event == 'reached', 'event': event,
+                                'deadline': now + self.cfg.close_timeout,
+                                'grace': now + self.cfg.close_grace}
+            else:                                 # its start was not seen: nothing to learn
+                self._progress({'episode': index, 'learned': 0, 'event': event}, t)
+
+    def _on_wall(self) -> None:
+        c = self.closing
+        if c is None:
+            return
+        now = time.monotonic()
+        if (self.reward_t >= c['t_end'] - TIME_TOL and now >= c['grace']) \
+                or now >= c['deadline']:
+            if now >= c['deadline'] and self.reward_t < c['t_end'] - TIME_TOL:
+                self.get_logger().warning(f'episode {self.episode["index"]}: its last reward '
+                                          f'did not arrive within {self.cfg.close_timeout} s')
+            self._close()
+
+    # ------------------------------------------------------------------ learning
+
+    def _close(self) -> None:
+        ep, c = self.episode, self.closing
+        self.episode = self.closing = None
+        mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory)
+        # learn only from episodes recorded from their start
+        learnable = self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
+        diag = self.learner.learn(mem) if learnable else {}
+        if learnable:
+            self.version += 1
+            if self.out is not None:
+                save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,
+                                {'version': self.version, 'episode': ep['index'],
+                                 'condition': self.graph.condition, 'seed': self.graph.seed})
+            self._publish_params(c['t_end'])
+        row = {'label': self.graph.condition, 'condition': self.graph.condition,
+               'seed': self.graph.seed, 'phase': 'train', 'episode': ep['index'],
+               **episode_row(mem, self.names, ep['probs'], ep['values'], diag, ep['start']),
+               'event': c['event'], 'learned': int(learnable), 'version': self.version,
+               'stale_decisions': ep['stale'], 't_end': c['t_end']}
+        if learnable and self.out is not None:
+            self._append_csv(row)
+        self._progress(row, c['t_end'])
+
+    def _publish_params(self, t: float) -> None:
+        for m in self.modules:
+            self.pub_params[m.name].publish(mconv.params_msg(m.name, m.w, m.W, m.sigma,
+                                                             self.version, t))
+
+    def _progress(self, row: dict, t: float) -> None:
+        row = {'version': self.version, **row}
+        self.pub_progress.publish(rconv.event_msg(
+            PROGRESS_STATUS, 'learned' if row.get('learned') else 'skipped', t, **row))
+
+    def _append_csv(self, row: dict) -> None:
+        path = self.out / 'episodes.csv'
+        new = not path.is_file() or path.stat().st_size == 0
+        fields = list(row)
+        if not new:                                  # resumed: keep the file's columns
+            with open(path, newline='') as fh:
+                fields = next(csv.reader(fh), fields)
+        with open(path, 'a', newline='') as fh:
+            writer = csv.DictWriter(fh, fieldnames=fields, extrasaction='ignore')
+            if new:
+                writer.writeheader()
+            writer.writerow(row)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(LearnerNode, 'learner', __doc__, args)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,129 @@
+"""What every node of the CLIS graph shares: parameters, sim time, the executor and ``main``.
+
+Parameters (declared once, frozen into dataclasses, validated at start): the CLIS sections of
+``config/clis.yaml`` (``/**``; every graph node reads the same values as the headless runner),
+the ``graph`` section of ``config/graph.yaml`` (condition, seed, arena, executor) and the node's
+own section of ``config/graph.yaml``. Each is declared as a dotted ROS parameter with the file's
+value as default, so ``--ros-args -p graph.condition:=sync`` or ``--params-file`` override it; a
+bad value stops the node (exit code 2) with a message naming the key and its range.
+
+Time: graph nodes follow ``/clock`` (``use_sim_time`` true) unless told otherwise, since the
+robot interface (simulator or bridge) publishes it; decisions, staleness and episode times are
+all in that clock.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import sys
+from typing import Any
+
+from cr_sim.core.arena import Arena, load_arena
+from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from clis_modules.core.modules import CONDITIONS, ModuleSetParams
+
+__all__ = ['GraphParams', 'GraphNode', 'make_executor', 'run_node']
+
+EXECUTORS = ('events', 'single')
+
+
+@dataclass(frozen=True)
+class GraphParams:
+    """Settings every CLIS graph node shares (``config/graph.yaml``, section ``graph``)."""
+
+    condition: str = param(choices=CONDITIONS, doc='which modules run, on which periods')
+    seed: int = param(0, 2**31 - 1, doc='seed of the run (each node derives its own streams)')
+    arena_file: str = param(doc="arena description (the place module's map); '' = "
+                                'config/arena.yaml')
+    executor: str = param(choices=EXECUTORS, doc="rclpy executor: 'events' "
+                          '(rclpy.experimental.EventsExecutor) or the default single-threaded')
+
+
+class GraphNode(Node):
+    """A node of the CLIS graph: parameters from the config files (module docstring).
+
+    Parameters
+    ----------
+    name : str
+        Node name.
+    section : str or None
+        The node's own section of ``config/graph.yaml``.
+    section_cls : type or None
+        Its frozen parameter dataclass.
+    clis_cls : type
+        Dataclass of the ``clis.yaml`` sections the node reads (:class:`ModuleSetParams`, or
+        the learner's ``ClisParams``).
+
+    Attributes
+    ----------
+    clis : ModuleSetParams or ClisParams
+    graph : GraphParams
+    cfg : the ``section_cls`` instance (None without a section)
+    """
+
+    def __init__(self, name: str, section: str | None = None, section_cls: type | None = None,
+                 clis_cls: type = ModuleSetParams, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        if 'use_sim_time' not in self._parameter_overrides:   # not set by the user: follow
+            self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, True)])
+        graph_file = config_dir() / 'graph.yaml'
+        graph = ros_parameters(graph_file, '/**')
+        clis = ros_parameters(config_dir() / 'clis.yaml', '/**')
+        sections = {f for f in clis_cls.__dataclass_fields__}
+        defaults = {k: v for k, v in clis.items() if k in sections}
+        defaults['graph'] = graph['graph']
+        if section is not None:
+            defaults[section] = graph[section]
+        values = declare_from_config(self, defaults)
+        self.graph: GraphParams = build(GraphParams, values.pop('graph'), where='graph')
+        self.cfg = (build(section_cls, values.pop(section), where=section)
+                    if section is not None else None)
+        self.clis = build(clis_cls, values, where='clis')
+
+    def arena(self) -> Arena:
+        """The arena of ``graph.arena_file``."""
+        return load_arena(self.graph.arena_file or None)
+
+    def now_s(self) -> float:
+        """The node's clock (sim time under ``/clock``) in seconds."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+
+def make_executor(kind: str):
+    """``'events'``: rclpy's EventsExecutor; ``'single'``: the default SingleThreadedExecutor."""
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor()
+    return SingleThreadedExecutor()
+
+
+def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
+             args: list[str] | None = None) -> None:
+    """``main`` of a graph node: ``--help``, init, build (exit 2 on a bad parameter), spin until
+    Ctrl-C / SIGTERM, clean shutdown."""
+    print_help_and_exit_if_asked(doc, args)
+    rclpy.init(args=args)
+    try:
+        node = factory()
+    except (ConfigError, ValueError) as exc:
+        print(f'{name}: bad parameter: {exc}', file=sys.stderr, flush=True)
+        rclpy.try_shutdown()
+        raise SystemExit(2) from None
+    executor = make_executor(node.graph.executor)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        close = getattr(node, 'close', None)
+        if callable(close):
+            close()
+        node.destroy_node()
+        rclpy.try_shutdown()

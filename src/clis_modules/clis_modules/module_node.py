@@ -1,0 +1,238 @@
+"""``ros2 run clis_modules innate|view|place``: one CLIS module deciding on its own timer.
+
+Every ``tau_i`` of the clock (``/clock`` under sim time; 250/500/1200 ms in Async, the slowest
+period for all in Sync) the module reads the latest ``camera`` and ``ir`` readings (the place
+module also every ``wheels`` reading since its last decision: odometry), decides through the
+same :class:`~clis_modules.core.decider.Decider` as the headless runner, and publishes its
+proposal on ``~/proposal`` (sensor_msgs/JointState: sampled wheel command, policy mean and
+sigma, V_i(x), features, stamped with the time of the sensor readings it used; layout in
+:mod:`clis_modules.conversions`). The place module also publishes its belief on ``~/belief``
+(nav_msgs/OccupancyGrid, marginal over heading).
+
+Episodes (``episode`` events of the robot interface): at a ``start`` the module forgets its
+state (the place module's belief becomes uniform), decides at once on the first readings of
+the new episode, and restarts its timer, so that its decisions fall at ``t_0 + l tau_i`` as in
+the headless runner; after ``reached``/``timeout``/``reset`` it stays silent until the next
+start.
+
+Parameters from the learner (``~/params``, transient local: a restarted module gets the latest
+at once) change only between episodes, as in the headless runner: they are applied before the
+first decision of an episode. A ``start`` event that announces a parameter version
+(``params_version``, from a simulator waiting for the learner) makes the module wait for those
+parameters, at most ``module.params_timeout`` s of wall time, before its first decision.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+import math
+import time
+
+from cr_sim.core.params import ConfigError, dataclass, param
+from cr_sim.core.sim import load_sim_params
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import OccupancyGrid
+import numpy as np
+from rclpy.clock import Clock, ClockType
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from sensor_msgs.msg import JointState, LaserScan
+
+from clis_modules import conversions as conv
+from clis_modules.core.decider import Decider, Percept
+from clis_modules.core.modules import MODULE_NAMES, arena_map, condition_periods, make_module
+from clis_modules.graph_node import GraphNode, run_node
+from cr_sim import conversions as rconv
+
+__all__ = ['ModuleNodeParams', 'ModuleNode', 'main', 'main_innate', 'main_view', 'main_place']
+
+#: Two stamps closer than this [s] are the same instant.
+_TOL = 1e-6
+#: QoS of the latched topics (episode events, parameters).
+LATCHED = QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+PARAMS_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+END_EVENTS = ('reached', 'timeout', 'reset')
+
+
+@dataclass(frozen=True)
+class ModuleNodeParams:
+    """Settings of a module node (``config/graph.yaml``, section ``module``)."""
+
+    params_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for announced '
+                                  'parameters at an episode start')
+    frame: str = param(doc="frame of the place module's belief grid")
+
+
+class ModuleNode(GraphNode):
+    """Thin glue around a :class:`Decider` (module docstring)."""
+
+    def __init__(self, kind: str) -> None:
+        super().__init__(kind, 'module', ModuleNodeParams)
+        periods = dict(condition_periods(self.clis, self.graph.condition))
+        if kind not in periods:
+            raise ConfigError(f'graph.condition = {self.graph.condition!r} has no {kind} '
+                              f'module (it runs {", ".join(periods)})')
+        arena = self.arena()
+        module = make_module(self.clis, kind, periods[kind], *arena_map(arena))
+        self.period = periods[kind]
+        rng = np.random.default_rng([self.graph.seed, 2, MODULE_NAMES.index(kind)])
+        self.decider = Decider(module, rng, load_sim_params().robot.wheel_base)
+        self.t0: float | None = None            # start of the running episode (None: none)
+        self.due = False                        # a decision waits for fresh readings
+        self.last_t = -math.inf                 # stamp of the last decision's readings
+        self.expect_version = 0                 # parameter version announced by the start
+        self.wait_until = 0.0                   # wall deadline of that wait
+        self.pending = None                     # parameters received during an episode
+        self.camera: deque = deque(maxlen=20)   # (stamp, dest bearing, landmark bearings)
+        self.ir: deque = deque(maxlen=20)       # (stamp, d_o)
+        self.wheels: deque = deque(maxlen=2000)  # (stamp, v_left, v_right)
+        self.wheels_t = -math.inf               # stamp of the last wheels reading used
+        self.landmarks = [lm.name for lm in arena.landmarks]
+
+        self.pub = self.create_publisher(JointState, '~/proposal', 10)
+        self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
+                           if self.decider.localizes else None)
+        self.create_subscription(JointState, 'camera', self._on_camera, 10)
+        self.create_subscription(LaserScan, 'ir', self._on_ir, 10)
+        if self.decider.localizes:
+            self.create_subscription(JointState, 'wheels', self._on_wheels, 100)
+        self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
+        self.create_subscription(JointState, '~/params', self._on_params, PARAMS_QOS)
+        self.timer = self.create_timer(self.period, self._on_timer)
+        # wall clock: waiting for parameters while the simulator holds its clock
+        self.create_timer(0.05, self._on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(
+            f'{kind}: condition {self.graph.condition}, period {self.period} s, '
+            f'v_max {module.v_max:.3f} m/s, {module.n} features')
+
+    # ------------------------------------------------------------------ inputs
+
+    def _on_camera(self, msg: JointState) -> None:
+        t, bearings = rconv.bearings_from_msg(msg)
+        lm = np.array([bearings.get(name, math.nan) for name in self.landmarks])
+        self.camera.append((t, bearings.get('destination', math.nan), lm))
+        self._try_decide()
+
+    def _on_ir(self, msg: LaserScan) -> None:
+        t, ranges = rconv.ir_from_msg(msg)
+        self.ir.append((t, float(np.min(ranges)) if ranges.size else math.inf))
+        self._try_decide()
+
+    def _on_wheels(self, msg: JointState) -> None:
+        t, v = rconv.wheels_from_msg(msg)
+        if v.size == 2:
+            self.wheels.append((t, float(v[0]), float(v[1])))
+
+    def _on_episode(self, msg: DiagnosticArray) -> None:
+        t, event, values = rconv.episode_from_msg(msg)
+        if event == 'start':
+            self._start(t, int(values.get('params_version', 0)))
+        elif event in END_EVENTS:
+            self.t0, self.due = None, False
+
+    def _on_params(self, msg: JointState) -> None:
+        try:
+            name, w, W, sigma, version = conv.params_from_msg(msg)  # noqa: N806
+        except ValueError as exc:
+            self.get_logger().error(f'ignored parameters: {exc}')
+            return
+        if name != self.decider.name:
+            self.get_logger().error(f'ignored parameters of {name!r} on my topic')
+            return
+        self.pending = (w, W, sigma, version)
+        if self.t0 is None or self.last_t < self.t0:      # no decision in this episode yet
+            self._apply_pending()
+            self._try_decide()
+
+    def _on_timer(self) -> None:
+        if self.t0 is not None:
+            self.due = True
+            self._try_decide()
+
+    def _on_wall(self) -> None:
+        if self.due and self.decider.version < self.expect_version \
+                and time.monotonic() >= self.wait_until:
+            self.get_logger().warning(
+                f'parameters version {self.expect_version} did not arrive within '
+                f'{self.cfg.params_timeout} s: deciding with version {self.decider.version}')
+            self.expect_version = self.decider.version
+            self._try_decide()
+
+    # ------------------------------------------------------------------ decisions
+
+    def _start(self, t0: float, version: int) -> None:
+        self.decider.reset()
+        self._apply_pending()
+        self.t0 = t0
+        self.expect_version = version
+        self.wait_until = time.monotonic() + self.cfg.params_timeout
+        self.wheels_t = t0
+        self.due = True
+        self.timer.reset()
+        self._try_decide()
+
+    def _apply_pending(self) -> None:
+        if self.pending is None:
+            return
+        try:
+            self.decider.set_parameters(*self.pending)
+        except ValueError as exc:
+            self.get_logger().error(f'ignored parameters: {exc}')
+        self.pending = None
+
+    def _readings(self) -> tuple[float, float, np.ndarray, float] | None:
+        """The newest instant of this episode with both a camera and an IR reading, newer
+        than the last decision: ``(t, dest bearing, landmark bearings, d_o)``."""
+        ir = {round(t, 6): d_o for t, d_o in self.ir}
+        for t, dest, lm in reversed(self.camera):
+            if t < self.t0 - _TOL or t <= self.last_t + _TOL:
+                return None
+            d_o = ir.get(round(t, 6))
+            if d_o is not None:
+                return t, dest, lm, d_o
+        return None
+
+    def _try_decide(self) -> None:
+        if not self.due or self.t0 is None or self.decider.version < self.expect_version:
+            return
+        found = self._readings()
+        if found is None:
+            return
+        t, dest, lm, d_o = found
+        # odometry: the wheel velocities of every step that ended after the last reading
+        # used, up to this one (each held since the previous reading)
+        while self.wheels and self.wheels[0][0] <= t + _TOL:
+            tw, vl, vr = self.wheels.popleft()
+            if tw > self.wheels_t + _TOL:
+                self.decider.on_wheels(vl, vr, tw - self.wheels_t)
+                self.wheels_t = tw
+        p = self.decider.decide(Percept(t, dest, d_o, lm))
+        self.due, self.last_t = False, t
+        self.pub.publish(conv.proposal_msg(p, self.now_s()))
+        if self.pub_belief is not None:
+            loc = self.decider.module.localizer
+            self.pub_belief.publish(conv.belief_msg(
+                loc.belief_grid, loc.cell, (-loc.half_size, -loc.half_size), t, self.cfg.frame))
+
+
+def main(args: list[str] | None = None, kind: str = 'innate') -> None:
+    run_node(lambda: ModuleNode(kind), kind, __doc__, args)
+
+
+def main_innate(args: list[str] | None = None) -> None:
+    """``ros2 run clis_modules innate``."""
+    main(args, 'innate')
+
+
+def main_view(args: list[str] | None = None) -> None:
+    """``ros2 run clis_modules view``."""
+    main(args, 'view')
+
+
+def main_place(args: list[str] | None = None) -> None:
+    """``ros2 run clis_modules place``."""
+    main(args, 'place')
+
+
+if __name__ == '__main__':       # python -m clis_modules.module_node KIND [--ros-args ...]
+    import sys
+    main(sys.argv[:1] + sys.argv[2:], sys.argv[1] if len(sys.argv) > 1 else 'innate')
