@@ -21,6 +21,7 @@ says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint.
 
 from __future__ import annotations
 
+from collections import deque
 import csv
 import math
 import os
@@ -89,6 +90,7 @@ class LearnerNode(GraphNode):
         self.closing: dict | None = None        # the ended episode waiting for its records
         self.first_reward_t = math.inf          # stamp of the first reward this process got
         self.reward_t = -math.inf               # newest reward stamp (the watermark)
+        self.draws: deque = deque(maxlen=10000)  # (t, Pr(i|x), V_i) of the arbiter's draws
 
         self.pub_params = {name: self.create_publisher(JointState, f'{name}/params',
                                                        PARAMS_QOS) for name in self.names}
@@ -101,6 +103,8 @@ class LearnerNode(GraphNode):
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.create_timer(0.005, self._on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._publish_params(0.0)
+        # "up": the simulator's learner gate starts the first episode on this report
+        self._progress({'episode': 0, 'learned': 0, 'event': 'ready'}, 0.0)
         self.get_logger().info(
             f'learner: condition {self.graph.condition}, modules {", ".join(self.names)}, '
             f'correction {self.clis.learner.correction}, out {self.out or "-"}')
@@ -124,11 +128,18 @@ class LearnerNode(GraphNode):
             self.buffer.add_action(t, u, acting)
 
     def _on_selection(self, msg: JointState) -> None:
+        # kept by stamp: a draw may arrive before the episode's start event
         t, _, probs, values = mconv.selection_from_msg(msg)
-        ep = self.episode
-        if ep is not None and ep['probs'] is None and t >= ep['t0'] - TIME_TOL:
-            ep['probs'] = [probs.get(n, math.nan) for n in self.names]
-            ep['values'] = [values.get(n, math.nan) for n in self.names]
+        self.draws.append((t, [probs.get(n, math.nan) for n in self.names],
+                           [values.get(n, math.nan) for n in self.names]))
+
+    def _first_draw(self, t0: float, t_end: float) -> tuple[list | None, list | None]:
+        """``Pr(i | x)`` and values of the episode's first draw (None if none arrived)."""
+        first = next(((p, v) for t, p, v in self.draws if t0 - TIME_TOL <= t <= t_end + TIME_TOL),
+                     (None, None))
+        while self.draws and self.draws[0][0] <= t_end + TIME_TOL:
+            self.draws.popleft()
+        return first
 
     def _on_reward(self, msg: Vector3Stamped) -> None:
         t, r, _ = rconv.reward_from_msg(msg)
@@ -143,7 +154,7 @@ class LearnerNode(GraphNode):
             if self.closing is not None:
                 self._close()
             self.episode = {'index': index, 't0': t, 'start': values.get('start', ''),
-                            'probs': None, 'values': None, 'stale': 0}
+                            'stale': 0}
         elif event in END_EVENTS:
             if self.episode is not None and self.episode['index'] == index:
                 now = time.monotonic()
@@ -171,6 +182,7 @@ class LearnerNode(GraphNode):
         ep, c = self.episode, self.closing
         self.episode = self.closing = None
         mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory)
+        probs, values = self._first_draw(ep['t0'], c['t_end'])
         # learn only from episodes recorded from their start
         learnable = self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
         diag = self.learner.learn(mem) if learnable else {}
@@ -183,7 +195,7 @@ class LearnerNode(GraphNode):
             self._publish_params(c['t_end'])
         row = {'label': self.graph.condition, 'condition': self.graph.condition,
                'seed': self.graph.seed, 'phase': 'train', 'episode': ep['index'],
-               **episode_row(mem, self.names, ep['probs'], ep['values'], diag, ep['start']),
+               **episode_row(mem, self.names, probs, values, diag, ep['start']),
                'event': c['event'], 'learned': int(learnable), 'version': self.version,
                'stale_decisions': ep['stale'], 't_end': c['t_end']}
         if learnable and self.out is not None:

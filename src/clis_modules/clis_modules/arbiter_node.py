@@ -9,6 +9,13 @@ it executes the acting module's proposal clipped to that module's speed limit; a
 latest proposal is older than ``arbiter.stale_periods`` of its periods is dropped from the
 selection (another one is drawn), and with none fresh the robot is commanded to stop.
 
+Lockstep (under sim time, ``arbiter_node.lockstep``): the arbiter answers every instant of the
+clock: once every decision due at that instant has been proposed (at most
+``arbiter_node.lockstep_timeout`` wall seconds, then the late module counts as missing), the
+Selector gets them together, as in the headless runner, and ``cmd_vel`` is sent stamped with
+the instant even if the command did not change; a simulator in lockstep (``node.lockstep``)
+waits for it before the next tick (:mod:`clis_modules.core.lockstep`).
+
 Publishes ``cmd_vel`` (geometry_msgs/TwistStamped stamped with the time of the sensor readings
 the command was decided on; plain Twist with ``arbiter_node.cmd_vel_stamped:=false``),
 ``~/selection`` (every draw: the acting module in ``header.frame_id``, ``Pr(i | x)`` and the
@@ -18,15 +25,19 @@ learner's densities are of). Layouts in :mod:`clis_modules.conversions`.
 
 from __future__ import annotations
 
+import time
+
 from cr_sim.core.params import dataclass, param
 from cr_sim.core.sim import load_sim_params
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import JointState
 
 from clis_modules import conversions as conv
 from clis_modules.core.arbiter import Command, Selector
+from clis_modules.core.lockstep import TickBarrier
 from clis_modules.core.modules import (
     CommonParams,
     condition_periods,
@@ -47,6 +58,10 @@ class ArbiterNodeParams:
     check_period: float = param(0.001, 10.0, doc='period of the staleness check [s, clock]')
     cmd_vel_stamped: bool = param(doc='cmd_vel is TwistStamped (true) or Twist (false)')
     base_frame: str = param(doc='frame_id of the stamped cmd_vel')
+    lockstep: bool = param(doc='under sim time, answer every instant once its due decisions '
+                           'are in')
+    lockstep_timeout: float = param(0.001, 60.0, doc='wall seconds an instant waits for a '
+                                    'due decision')
 
 
 def module_timing(common: CommonParams, periods: list[tuple[str, float]]
@@ -77,16 +92,30 @@ class ArbiterNode(GraphNode):
         for name in names:
             self.create_subscription(JointState, f'{name}/proposal', self._on_proposal, 10)
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
-        self.create_timer(self.cfg.check_period, self._on_check)
+        self.barrier = None
+        self.u_exec = np.zeros(2)                    # the command in force
+        if self.cfg.lockstep and self.sim_time:
+            self.barrier = TickBarrier(names, taus, self.cfg.lockstep_timeout)
+            self.on_clock_advance(self._on_tick)
+            self.create_timer(0.01, self._advance, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        else:
+            self.create_timer(self.cfg.check_period, self._on_check)
         self.get_logger().info(
             f'arbiter: condition {self.graph.condition}, modules {", ".join(names)}, '
-            f'selection per {self.selector.mode}, beta {common.beta}')
+            f'selection per {self.selector.mode}, beta {common.beta}'
+            f'{", lockstep" if self.barrier else ""}')
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
         t, event, _ = rconv.episode_from_msg(msg)
         if event == 'start':
             self.selector.begin_episode(t)
+            if self.barrier is not None:
+                self.barrier.begin_episode(t)
+                self.barrier.on_tick(t, time.monotonic())     # the clock may be there already
+                self._advance()
         elif event in END_EVENTS and self.selector.running:
+            if self.barrier is not None:
+                self.barrier.end_episode()
             self._publish(self.selector.end_episode())
 
     def _on_proposal(self, msg: JointState) -> None:
@@ -101,18 +130,41 @@ class ArbiterNode(GraphNode):
         if not (np.all(np.isfinite(p.u)) and np.isfinite(p.value)):
             self.get_logger().error(f'ignored non-finite proposal of {p.module}')
             return
-        self._publish(self.selector.on_proposals([p], self.now_s()))
+        if self.barrier is not None:
+            self.barrier.on_proposal(p)
+            self._advance()
+        else:
+            self._publish(self.selector.on_proposals([p], self.now_s()))
 
     def _on_check(self) -> None:
         self._publish(self.selector.check(self.now_s()))
+
+    def _on_tick(self, t: float) -> None:
+        self.barrier.on_tick(t, time.monotonic())
+        self._advance()
+
+    def _advance(self) -> None:
+        """Answer the instants whose due decisions are in (lockstep)."""
+        for t, ps in self.barrier.ready(time.monotonic()):
+            cmd = self.selector.on_proposals(ps, t) if ps else None
+            if cmd is None:
+                cmd = self.selector.check(t)
+            if cmd is not None:
+                self._publish(cmd)
+            else:                                    # the command in force, for this instant
+                self._send(self.u_exec, t)
+
+    def _send(self, u_exec: np.ndarray, t: float) -> None:
+        self.u_exec = u_exec
+        self.pub_cmd.publish(rconv.cmd_from_wheels(u_exec, self.wheel_base, t,
+                                                   self.cfg.base_frame,
+                                                   self.cfg.cmd_vel_stamped))
 
     def _publish(self, cmd: Command | None) -> None:
         if cmd is None:
             return
         acting = self.names[cmd.module] if cmd.module >= 0 else ''
-        self.pub_cmd.publish(rconv.cmd_from_wheels(cmd.u_exec, self.wheel_base, cmd.t,
-                                                   self.cfg.base_frame,
-                                                   self.cfg.cmd_vel_stamped))
+        self._send(cmd.u_exec, cmd.t)
         self.pub_action.publish(conv.action_msg(cmd.t, cmd.u, acting))
         if cmd.drawn:
             self.pub_selection.publish(conv.selection_msg(

@@ -22,6 +22,8 @@ from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 import rclpy
+from rclpy.clock import JumpThreshold
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -93,6 +95,20 @@ class GraphNode(Node):
     def now_s(self) -> float:
         """The node's clock (sim time under ``/clock``) in seconds."""
         return self.get_clock().now().nanoseconds * 1e-9
+
+    @property
+    def sim_time(self) -> bool:
+        """Whether the node follows ``/clock``."""
+        return bool(self.get_parameter('use_sim_time').value)
+
+    def on_clock_advance(self, callback: Callable[[float], None]) -> None:
+        """Call ``callback(t)`` whenever the clock moves forward (under sim time: at every
+        ``/clock`` message), right after the new time is set."""
+        threshold = JumpThreshold(min_forward=Duration(nanoseconds=1), min_backward=None,
+                                  on_clock_change=False)
+        self._jump_handles = [*getattr(self, '_jump_handles', []),
+                              self.get_clock().create_jump_callback(
+                                  threshold, post_callback=lambda _: callback(self.now_s()))]
 
 
 def make_executor(kind: str):

@@ -79,6 +79,8 @@ class ModuleNode(GraphNode):
         self.t0: float | None = None            # start of the running episode (None: none)
         self.due = False                        # a decision waits for fresh readings
         self.last_t = -math.inf                 # stamp of the last decision's readings
+        self.due_t = -math.inf                  # a decision uses readings from this instant on
+        self.align: float | None = None         # restart the timer when the clock reaches it
         self.expect_version = 0                 # parameter version announced by the start
         self.wait_until = 0.0                   # wall deadline of that wait
         self.pending = None                     # parameters received during an episode
@@ -98,6 +100,8 @@ class ModuleNode(GraphNode):
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.create_subscription(JointState, '~/params', self._on_params, PARAMS_QOS)
         self.timer = self.create_timer(self.period, self._on_timer)
+        if self.sim_time:
+            self.on_clock_advance(self._on_clock)
         # wall clock: waiting for parameters while the simulator holds its clock
         self.create_timer(0.05, self._on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(
@@ -146,7 +150,19 @@ class ModuleNode(GraphNode):
     def _on_timer(self) -> None:
         if self.t0 is not None:
             self.due = True
+            # under sim time the simulator publishes the readings of an instant before the
+            # clock reaches it: decide on those of this very instant (in real time, on the
+            # newest readings)
+            self.due_t = self.now_s() if self.sim_time else -math.inf
             self._try_decide()
+
+    def _on_clock(self, t: float) -> None:
+        if self.align is not None and t >= self.align - _TOL:
+            at, self.align = self.align, None
+            self.timer.reset()                  # decisions at t_0 + l tau_i
+            if self.t0 is not None and at > self.t0 + _TOL:   # joined late: decide now
+                self.due, self.due_t = True, at
+                self._try_decide()
 
     def _on_wall(self) -> None:
         if self.due and self.decider.version < self.expect_version \
@@ -166,8 +182,14 @@ class ModuleNode(GraphNode):
         self.expect_version = version
         self.wait_until = time.monotonic() + self.cfg.params_timeout
         self.wheels_t = t0
-        self.due = True
+        self.due, self.due_t = True, t0
         self.timer.reset()
+        if self.sim_time:
+            now = self.now_s()
+            if now < t0 - _TOL:                 # the clock has not reached the start yet
+                self.align = t0
+            elif now > t0 + _TOL:               # (re)started during the episode: next t_0+l tau
+                self.align = t0 + math.ceil((now - t0) / self.period - 1e-9) * self.period
         self._try_decide()
 
     def _apply_pending(self) -> None:
@@ -184,7 +206,7 @@ class ModuleNode(GraphNode):
         than the last decision: ``(t, dest bearing, landmark bearings, d_o)``."""
         ir = {round(t, 6): d_o for t, d_o in self.ir}
         for t, dest, lm in reversed(self.camera):
-            if t < self.t0 - _TOL or t <= self.last_t + _TOL:
+            if t < self.t0 - _TOL or t <= self.last_t + _TOL or t < self.due_t - _TOL:
                 return None
             d_o = ir.get(round(t, 6))
             if d_o is not None:

@@ -60,6 +60,12 @@ def wheels_from_cmd(msg: Twist | TwistStamped, wheel_base: float) -> np.ndarray:
     return np.asarray(twist_to_wheels(twist.linear.x, twist.angular.z, wheel_base), float)
 
 
+def cmd_stamp(msg: Twist | TwistStamped) -> float | None:
+    """The stamp [s] of a TwistStamped command (the time of the readings it was decided on);
+    None for a plain Twist."""
+    return from_time(msg.header.stamp) if isinstance(msg, TwistStamped) else None
+
+
 def cmd_from_wheels(u: Sequence[float], wheel_base: float, t: float, frame: str,
                     stamped: bool = True) -> Twist | TwistStamped:
     """A cmd_vel message for wheel velocities ``u`` = (v_left, v_right)."""
@@ -123,7 +129,7 @@ def reward_from_msg(msg: Vector3Stamped) -> tuple[float, float, int]:
     return from_time(msg.header.stamp), msg.vector.x, int(msg.vector.z)
 
 
-def event_msg(name: str, event: str, t: float, **values: object) -> DiagnosticArray:
+def event_msg(name: str, event: str, t: float, /, **values: object) -> DiagnosticArray:
     """A stamped event: one DiagnosticStatus named ``name`` with ``message = event`` and the
     key/values as text (episode events here, the learner's progress in the graph)."""
     status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=event,
@@ -141,7 +147,7 @@ def event_from_msg(msg: DiagnosticArray) -> tuple[float, str, dict[str, str]]:
                                                          for kv in status.values}
 
 
-def episode_msg(event: str, t: float, **values: object) -> DiagnosticArray:
+def episode_msg(event: str, t: float, /, **values: object) -> DiagnosticArray:
     """An episode event (``start``, ``reached``, ``timeout``, ``reset``) with key/values."""
     return event_msg(EPISODE_STATUS, event, t, **values)
 

@@ -25,6 +25,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile
 
 from cr_sim import conversions as conv
 from cr_sim.core.arena import load_arena
+from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
@@ -48,6 +49,9 @@ class SimNodeParams:
     wait_for_learner: bool = param(doc='after an episode, hold the clock until learner/progress '
                                    'reports it learned')
     learner_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for the learner')
+    lockstep: bool = param(doc='after each instant, hold the clock until a command decided on '
+                           'its readings arrives')
+    command_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for that command')
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
 
@@ -76,8 +80,8 @@ class SimNode(Node):
         self._time_offset = 0.0
         self.episode_return = 0.0
         self.next_marker_t = 0.0
-        self.hold: tuple[int, float] | None = None      # (episode, wall deadline) while waiting
-        self.learned = (0, 0)                            # (episode, version) the learner reported
+        self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout,
+                                self.cfg.lockstep, self.cfg.command_timeout)
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_clock = self.create_publisher(conv.Clock, '/clock', 10)
@@ -106,7 +110,8 @@ class SimNode(Node):
             (self.arena.destination.x, self.arena.destination.y,
              self.arena.destination.goal_radius), self.cfg.map_frame))
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
-        self._start_episode()
+        if self.gate.first(time.monotonic()):
+            self._start_episode()
         self.get_logger().info(
             f'arena {self.cfg.arena_file or "config/arena.yaml"}, dt {self.params.episode.dt} s, '
             f'speed x{self.cfg.speed_factor or "max"}, cmd_vel '
@@ -120,16 +125,17 @@ class SimNode(Node):
         # Clamped in the core (NaN/inf -> 0, limit): a bad command never reaches the wheels.
         self.u = conv.wheels_from_cmd(msg, self.wheel_base)
         self.u_time = self.sim.t
+        self.gate.on_command(conv.cmd_stamp(msg))
 
     def _on_progress(self, msg) -> None:
         _, _, values = conv.event_from_msg(msg)
         try:
-            self.learned = (int(values['episode']), int(values['version']))
+            self.gate.on_progress(int(values['episode']), int(values['version']))
         except (KeyError, ValueError):
             self.get_logger().warning(f'unreadable learner progress: {values}')
 
     def _on_reset(self, request, response):
-        self.hold = None
+        self.gate.state = 'run'
         self._end_episode('reset')
         self._start_episode()
         response.success = True
@@ -147,29 +153,27 @@ class SimNode(Node):
         self.episode_return = 0.0
         self.u[:] = 0.0
         self.u_time = -np.inf
-        extra = {'params_version': self.learned[1]} if self.cfg.wait_for_learner else {}
+        extra = {'params_version': self.gate.version} if self.cfg.wait_for_learner else {}
         self.pub_episode.publish(conv.episode_msg(
             'start', self.sim_time, episode=self.episode, start=start,
             pose=' '.join(f'{p:.3f}' for p in self.sim.pose), **extra))
+        self.gate.started(self.episode)
         self._publish_state()
 
     @property
     def holding(self) -> bool:
-        """Whether the clock is held, waiting for the learner (``node.wait_for_learner``)."""
-        return self.hold is not None
+        """Whether the clock stands still (:class:`~cr_sim.core.gate.EpisodeGate`)."""
+        return self.gate.holding
 
     def check_hold(self) -> None:
-        """Start the next episode once the learner has reported the last one (or timed out)."""
-        episode, deadline = self.hold
-        if self.learned[0] >= episode:
-            self.hold = None
-        elif time.monotonic() >= deadline:
-            self.get_logger().warning(
-                f'the learner did not report episode {episode} within '
-                f'{self.cfg.learner_timeout} s: starting the next one')
-            self.hold = None
-        if self.hold is None:
+        """Start the next episode or let the clock run once the gate opens."""
+        action, warning = self.gate.poll(time.monotonic())
+        if warning:
+            self.get_logger().warning(warning)
+        if action == 'start':
             self._start_episode()
+        elif action == 'resend':
+            self._resend()
 
     def _end_episode(self, event: str) -> None:
         self.pub_episode.publish(conv.episode_msg(
@@ -190,9 +194,7 @@ class SimNode(Node):
         self._publish_state()
         if res.done:
             self._end_episode('reached' if res.reached else 'timeout')
-            if self.cfg.auto_reset and self.cfg.wait_for_learner:
-                self.hold = (self.episode, time.monotonic() + self.cfg.learner_timeout)
-            elif self.cfg.auto_reset:
+            if self.cfg.auto_reset and self.gate.ended(self.episode, time.monotonic()):
                 self._start_episode()
 
     def _publish_state(self) -> None:
@@ -202,18 +204,26 @@ class SimNode(Node):
         obs = self.sim.observe()
         frame = self.cfg.base_frame
         sensors = self.params.sensors
-        self.pub_ir.publish(conv.ir_msg(obs.ir, np.deg2rad(sensors.ir_angles_deg),
-                                        sensors.ir_range, t, frame))
-        self.pub_camera.publish(conv.bearings_msg(
-            self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame))
-        self.pub_wheels.publish(conv.wheels_msg(obs.wheels, t, frame))
-        self.pub_odom.publish(conv.odom_msg(self.sim.pose, obs.wheels, self.wheel_base, t,
-                                            self.cfg.map_frame, frame))
+        self._last = [
+            (self.pub_ir, conv.ir_msg(obs.ir, np.deg2rad(sensors.ir_angles_deg),
+                                      sensors.ir_range, t, frame)),
+            (self.pub_camera, conv.bearings_msg(
+                self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame)),
+            (self.pub_wheels, conv.wheels_msg(obs.wheels, t, frame)),
+            (self.pub_odom, conv.odom_msg(self.sim.pose, obs.wheels, self.wheel_base, t,
+                                          self.cfg.map_frame, frame)),
+            (self.pub_clock, conv.clock_msg(t))]
         if t >= self.next_marker_t:
             self.next_marker_t = t + self.cfg.markers_period
             self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
                 self.sim.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
-        self.pub_clock.publish(conv.clock_msg(t))
+        self._resend()
+        self.gate.published(t, time.monotonic())
+
+    def _resend(self) -> None:
+        """Publish the readings of the current instant (again)."""
+        for pub, msg in self._last:
+            pub.publish(msg)
 
     @property
     def sim_time(self) -> float:

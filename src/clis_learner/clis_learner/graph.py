@@ -1,0 +1,466 @@
+"""``clis run``: start the CLIS node graph on the simulator and learn live.
+
+The graph is the robot interface (``cr_sim sim``; the real robot's bridge later), one node per
+module of the condition (``clis_modules innate|view|place``), the arbiter and the learner, each
+a separate process started exactly as ``ros2 run PKG EXE --ros-args ...`` would start it (the
+executables colcon installed in ``install/PKG/lib/PKG/``), all on the loopback and on this
+run's own ``ROS_DOMAIN_ID``. The simulator runs under sim time (``/clock``) as fast as the graph
+keeps up (``--speed 0``, default), ``--speed X`` times real time, or ``--real-time``; after each
+episode it holds its clock until the learner has learned from it (``node.wait_for_learner``),
+as the real robot wanders to its next start while the learner learns.
+
+While it runs, one line shows the learner's progress (from ``learner/progress``): learned
+episodes, successes in the last block, who acted, Pr(i | x_0), the real-time factor. At the end
+(N learned episodes, or Ctrl-C) every child is stopped cleanly, simulator first and learner
+last, and OUT gets the learning curve (``curve.csv``, ``curve.png``, from ``episodes.csv``).
+Each child's output goes to ``OUT/logs/NAME.log``.
+
+A child that dies is reported with the end of its log. A module or the arbiter is restarted
+(it rejoins with the latest parameters, which the learner publishes transient-local); the
+learner is restarted from its last checkpoint (``learner_node.resume``); the simulator is not
+(its episode is lost): the run stops. At most ``--max-restarts`` restarts per child.
+
+``--single-process`` runs every node in this process, in one executor (like a component
+container); docs/benchmarks.md compares both.
+
+Exit codes: 0 done; 1 a child died and could not be restarted; 2 bad arguments or a bad
+parameter (the child's message names the key); 3 the graph did not come up;
+130 interrupted (Ctrl-C), after a clean stop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import ctypes
+from dataclasses import dataclass, field
+import math
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+from typing import Any
+
+from clis_modules.core.modules import CONDITIONS
+
+__all__ = ['Child', 'GraphPlan', 'plan_graph', 'register', 'main', 'write_curve']
+
+EXIT_OK, EXIT_CHILD, EXIT_CONFIG, EXIT_STARTUP, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EPILOG = """examples:
+  clis run --condition async --episodes 300                 # as fast as the graph keeps up
+  clis run --condition view --episodes 50 --speed 5 --out results/run/view
+  clis run --condition async --episodes 300 --resume results/run/async/checkpoint.npz
+  clis run --condition sync --episodes 100 --params my_overrides.yaml
+  ROS_DOMAIN_ID=7 clis run ...   # watch it: ros2 topic echo /arbiter/selection (same domain)
+"""
+
+
+@dataclass
+class Child:
+    """One node of the graph, started as its ``ros2 run`` executable.
+
+    ``restart``: ``'always'`` (stateless between episodes: modules, arbiter), ``'resume'``
+    (the learner: from its checkpoint) or ``'never'`` (the robot interface).
+    """
+
+    name: str
+    package: str
+    executable: str
+    params: dict[str, Any]
+    restart: str = 'always'
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    log: Path | None = None
+
+    def argv(self, params_files: list[Path]) -> list[str]:
+        """``EXE --ros-args [--params-file F]... -p KEY:=VALUE ...`` (what ``ros2 run`` runs)."""
+        from ament_index_python.packages import get_package_prefix
+        exe = Path(get_package_prefix(self.package)) / 'lib' / self.package / self.executable
+        args = [str(exe), '--ros-args']
+        for f in params_files:
+            args += ['--params-file', str(f)]
+        for key, value in self.params.items():
+            args += ['-p', f'{key}:={_ros_literal(value)}']
+        return args
+
+
+def _ros_literal(value: Any) -> str:
+    """A ``-p`` value ROS parses back to the same type (floats keep their point)."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        return value if value else "''"
+    return str(value)
+
+
+@dataclass
+class GraphPlan:
+    """The children of one run, in start order (the robot interface last)."""
+
+    children: list[Child] = field(default_factory=list)
+
+    def by_name(self, name: str) -> Child:
+        return next(c for c in self.children if c.name == name)
+
+
+def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str = '',
+               arena: str = '') -> GraphPlan:
+    """The nodes of ``condition``, with the parameters ``clis run`` gives each."""
+    from clis_modules.core.modules import condition_periods
+
+    from clis_learner.core.config import load_clis_params
+    modules = [name for name, _ in condition_periods(load_clis_params(), condition)]
+    graph = {'graph.condition': condition, 'graph.seed': seed, 'graph.arena_file': arena}
+    plan = GraphPlan()
+    plan.children.append(Child('learner', 'clis_learner', 'learner', {
+        **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume},
+        restart='resume'))
+    plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', dict(graph)))
+    for name in modules:
+        plan.children.append(Child(name, 'clis_modules', name, dict(graph)))
+    plan.children.append(Child('sim', 'cr_sim', 'sim', {
+        'node.seed': seed, 'node.arena_file': arena, 'node.speed_factor': float(speed),
+        'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
+        'node.lockstep': True},
+        restart='never'))
+    return plan
+
+
+# ---------------------------------------------------------------------------- the curve
+
+def write_curve(out: Path, block: int) -> tuple[Path, Path] | None:
+    """``OUT/curve.csv`` and ``OUT/curve.png`` from ``OUT/episodes.csv`` (learned episodes):
+    successes per block and the share of time each module acted. None without episodes."""
+    from clis_learner import figures
+    from clis_learner.core.runner import JobResult
+    path = out / 'episodes.csv'
+    if not path.is_file():
+        return None
+    with open(path, newline='') as fh:
+        rows = [_numbers(r) for r in csv.DictReader(fh)]
+    if not rows:
+        return None
+    names = [k[len('share_'):] for k in rows[0] if k.startswith('share_')]
+    block = max(1, min(block, len(rows)))
+    result = JobResult(spec={'label': str(rows[0].get('condition', 'graph'))}, modules=names,
+                       block=block, episodes=rows, evals=[], place_map=None, arena={},
+                       seconds=0.0)
+    successes = result.success_curve()
+    shares = result.selection_shares()
+    csv_path = out / 'curve.csv'
+    tmp = csv_path.with_suffix('.csv.tmp')
+    with open(tmp, 'w', newline='') as fh:
+        w = csv.writer(fh)
+        w.writerow(['episodes', f'successes_per_{block}', *[f'share_{n}' for n in names]])
+        for k, s in enumerate(successes):
+            w.writerow([(k + 1) * block, int(s), *[round(float(x), 4) for x in shares[k]]])
+    os.replace(tmp, csv_path)
+    png = out / 'curve.png'
+    figures.fig3a([result], png)
+    if len(names) > 1:
+        figures.fig3bc([result], out / 'selection.png')
+    return csv_path, png
+
+
+def _numbers(row: dict[str, str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in row.items():
+        try:
+            out[k] = float(v)
+        except (TypeError, ValueError):
+            out[k] = v
+    return out
+
+
+# ---------------------------------------------------------------------------- supervision
+
+def _die_with_parent() -> None:
+    """In the child: SIGTERM when ``clis run`` dies, so that no node outlives it."""
+    try:
+        ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+class Supervisor:
+    """Starts, watches, restarts and stops the children of a :class:`GraphPlan`."""
+
+    def __init__(self, plan: GraphPlan, out: Path, params_files: list[Path],
+                 max_restarts: int, say) -> None:
+        self.plan, self.out, self.params_files = plan, out, params_files
+        self.max_restarts, self.say = max_restarts, say
+        (out / 'logs').mkdir(parents=True, exist_ok=True)
+
+    def start(self, child: Child) -> None:
+        child.log = self.out / 'logs' / f'{child.name}.log'
+        fh = open(child.log, 'a')
+        child.proc = subprocess.Popen(child.argv(self.params_files), stdout=fh,
+                                      stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                      start_new_session=True, preexec_fn=_die_with_parent)
+        fh.close()
+
+    def tail(self, child: Child, lines: int = 6) -> str:
+        try:
+            text = child.log.read_text(errors='replace').splitlines()
+        except OSError:
+            return ''
+        return '\n'.join('    ' + s for s in text[-lines:])
+
+    def check(self) -> int | None:
+        """Handle dead children; an exit code if the run cannot go on."""
+        for child in self.plan.children:
+            code = child.proc.poll() if child.proc is not None else None
+            if code is None:
+                continue
+            self.say(f'\n{child.name} exited with code {code}; its log ends with:\n'
+                     f'{self.tail(child)}')
+            if code == EXIT_CONFIG:
+                return EXIT_CONFIG
+            if child.restart == 'never' or child.restarts >= self.max_restarts:
+                why = ('the robot interface' if child.restart == 'never'
+                       else 'too many restarts')
+                self.say(f'{child.name}: not restarted ({why})')
+                return EXIT_CHILD
+            if child.restart == 'resume':
+                ckpt = self.out / 'checkpoint.npz'
+                if ckpt.is_file():
+                    child.params['learner_node.resume'] = str(ckpt)
+            child.restarts += 1
+            self.say(f'{child.name}: restarting ({child.restarts}/{self.max_restarts})'
+                     + (f' from {child.params["learner_node.resume"]}'
+                        if child.restart == 'resume' and child.params.get('learner_node.resume')
+                        else ''))
+            self.start(child)
+        return None
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """SIGINT the robot interface, then the modules and arbiter, the learner last."""
+        order = [c for c in self.plan.children if c.restart == 'never'] + \
+                [c for c in self.plan.children if c.restart == 'always'] + \
+                [c for c in self.plan.children if c.restart == 'resume']
+        for group in (order[:1], order[1:-1], order[-1:]):
+            live = [c for c in group if c.proc is not None and c.proc.poll() is None]
+            for c in live:
+                c.proc.send_signal(signal.SIGINT)
+            deadline = time.monotonic() + timeout
+            for c in live:
+                try:
+                    c.proc.wait(max(0.1, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    self.say(f'{c.name} did not stop within {timeout} s: killed')
+                    c.proc.kill()
+                    c.proc.wait()
+
+
+class Monitor:
+    """An rclpy node of ``clis run``: the learner's progress and the graph's discovery."""
+
+    def __init__(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        import rclpy
+        from rclpy.qos import DurabilityPolicy, QoSProfile
+
+        from cr_sim import conversions as rconv
+        self.rconv = rconv
+        self.node = rclpy.create_node('clis_run')
+        self.rows: list[dict[str, str]] = []
+        self.node.create_subscription(
+            DiagnosticArray, 'learner/progress', self._on_progress,
+            QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+
+    def _on_progress(self, msg) -> None:
+        t, event, values = self.rconv.event_from_msg(msg)
+        if values.get('event') == 'ready':             # the learner is up
+            return
+        values['t_end'] = values.get('t_end', str(t))
+        if self.rows and self.rows[-1].get('episode') == values.get('episode') \
+                and self.rows[-1].get('version') == values.get('version'):
+            return                                     # the latched copy of one seen
+        self.rows.append(values)
+
+    def up(self, nodes: list[str]) -> list[str]:
+        """Which of ``nodes`` are not discovered yet."""
+        seen = set(self.node.get_node_names())
+        return [n for n in nodes if n not in seen]
+
+    def spin(self, timeout: float) -> None:
+        import rclpy
+        rclpy.spin_once(self.node, timeout_sec=timeout)
+
+
+class ProgressView:
+    """The one-line progress of a run, from the learner's progress rows."""
+
+    def __init__(self, target: int, block: int, quiet: bool, tty: bool) -> None:
+        self.target, self.block, self.quiet, self.tty = target, block, quiet, tty
+        self.t_start = time.monotonic()
+        self.shown = 0
+        self.learned = 0
+
+    def update(self, rows: list[dict[str, str]]) -> bool:
+        """Show the newest row; True once ``target`` episodes are learned."""
+        if len(rows) <= self.shown:
+            return False
+        self.shown = len(rows)
+        done = [r for r in rows if r.get('learned') == '1']
+        self.learned = len(done)
+        if not self.quiet:
+            line = self.line(rows[-1], done, time.monotonic() - self.t_start)
+            print(('\r\033[K' + line[:200]) if self.tty else line, end='' if self.tty else '\n',
+                  file=sys.stderr, flush=True)
+        return self.learned >= self.target
+
+    def line(self, last: dict[str, str], done: list[dict[str, str]], wall: float) -> str:
+        recent = done[-self.block:]
+        succ = sum(int(float(r.get('reached', 0))) for r in recent)
+        probs = ' '.join(f'{k[2:]}={float(v):.2f}' for k, v in last.items()
+                         if k.startswith('p_') and v not in ('nan', ''))
+        # sim time starts at 0 with the simulator
+        rtf = float(last.get('t_end', 'nan')) / wall if wall > 0 else math.nan
+        eta = wall * (self.target - self.learned) / self.learned if self.learned else math.nan
+        what = 'reached' if last.get('reached') == '1' else last.get('event', '?')
+        return (f'episode {self.learned}/{self.target} | {succ}/{len(recent)} reached in the '
+                f'last {len(recent)} | ep {last.get("episode")}: {what} '
+                f'{float(last.get("duration", "nan")):.1f} s, acted {last.get("behaviour", "-")}'
+                f'{" | P(i|x0) " + probs if probs else ""} | x{rtf:.0f} real time | '
+                f'{wall / 60:.1f} min, ETA {eta / 60:.1f} min')
+
+    def summary(self) -> str:
+        return (f'{self.learned} episodes learned in '
+                f'{(time.monotonic() - self.t_start) / 60:.1f} min')
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'run', help='run the CLIS node graph on the simulator and learn live',
+        description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--condition', default='async', choices=CONDITIONS,
+                   help='which modules run (default: %(default)s)')
+    p.add_argument('--episodes', type=int, default=100,
+                   help='learned episodes before stopping (default: %(default)s)')
+    speed = p.add_mutually_exclusive_group()
+    speed.add_argument('--speed', type=float, default=0.0,
+                       help='sim time / wall time; 0 = as fast as the graph keeps up (default)')
+    speed.add_argument('--real-time', action='store_true', help='same as --speed 1')
+    p.add_argument('--seed', type=int, default=0, help='seed of the run (default 0)')
+    p.add_argument('--params', type=Path, action='append', default=[], metavar='FILE',
+                   help='a ROS parameter file given to every node (--params-file), e.g. to '
+                        'override config/clis.yaml keys under "/**: ros__parameters:"')
+    p.add_argument('--resume', type=Path, help='start the learner from this checkpoint')
+    p.add_argument('--out', type=Path, help='output folder (default results/run/CONDITION-'
+                   'seedS-DATE)')
+    p.add_argument('--arena', type=str, default='', help='arena file (default config/arena.yaml)')
+    p.add_argument('--block', type=int, default=50,
+                   help='episodes per point of the learning curve (default 50, the paper)')
+    p.add_argument('--max-restarts', type=int, default=3,
+                   help='restarts per child before giving up (default 3)')
+    p.add_argument('--startup-timeout', type=float, default=60.0,
+                   help='seconds for the nodes to come up (default 60)')
+    p.add_argument('--single-process', action='store_true',
+                   help='all nodes in this process, one executor (a component container)')
+    p.add_argument('--quiet', action='store_true', help='no progress line')
+    p.set_defaults(func=main)
+
+
+def _check_args(args: argparse.Namespace) -> str | None:
+    if args.episodes < 1:
+        return f'--episodes {args.episodes}: must be at least 1'
+    if args.real_time:
+        args.speed = 1.0
+    if not 0.0 <= args.speed <= 1000.0:
+        return f'--speed {args.speed}: must be in [0, 1000] (0 = as fast as possible)'
+    if not 0 <= args.seed < 2**31:
+        return f'--seed {args.seed}: must be in [0, 2^31)'
+    for f in args.params:
+        if not f.is_file():
+            return f'--params {f}: no such file'
+    if args.resume is not None and not args.resume.is_file():
+        return f'--resume {args.resume}: no such checkpoint'
+    if args.block < 1:
+        return f'--block {args.block}: must be at least 1'
+    return None
+
+
+def main(args: argparse.Namespace) -> int:
+    error = _check_args(args)
+    if error:
+        print(f'clis run: {error}', file=sys.stderr)
+        return EXIT_CONFIG
+    if args.out is None:
+        args.out = Path('results/run') / (f'{args.condition}-seed{args.seed}-'
+                                          f'{time.strftime("%Y%m%d-%H%M%S")}')
+    out = args.out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    plan = plan_graph(args.condition, args.seed, out, args.speed,
+                      str(args.resume.resolve()) if args.resume else '', args.arena)
+    tty = sys.stderr.isatty() and not args.quiet
+
+    def say(text: str) -> None:
+        print(('\r\033[K' if tty else '') + text, file=sys.stderr, flush=True)
+
+    say(f'clis run: {args.condition}, seed {args.seed}, {args.episodes} episodes, '
+        f'speed {"max" if args.speed == 0 else f"x{args.speed:g}"}, ROS_DOMAIN_ID '
+        f'{os.environ.get("ROS_DOMAIN_ID")}, out {out}')
+    if args.single_process:
+        from clis_learner.graph_single import run_single
+        code = run_single(plan, args, out, say)
+    else:
+        code = _run_processes(plan, args, out, say, tty)
+    curve = write_curve(out, args.block)
+    if curve is not None:
+        say(f'learning curve: {curve[0]}, {curve[1]}')
+    return code
+
+
+def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
+                   tty: bool) -> int:
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    rclpy.init(args=['clis_run', '--ros-args', '--disable-rosout-logs'],
+               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    interrupted = []
+    old = signal.signal(signal.SIGINT, lambda *_: interrupted.append(True))
+    signal.signal(signal.SIGTERM, lambda *_: interrupted.append(True))
+    sup = Supervisor(plan, out, args.params, args.max_restarts, say)
+    monitor = Monitor()
+    code = EXIT_OK
+    try:
+        for child in plan.children[:-1]:               # everything but the robot interface
+            sup.start(child)
+        deadline = time.monotonic() + args.startup_timeout
+        missing = monitor.up([c.name for c in plan.children[:-1]])
+        while missing and not interrupted:
+            if (code := sup.check()) is not None:
+                return code
+            if time.monotonic() > deadline:
+                say(f'clis run: {", ".join(missing)} did not come up within '
+                    f'{args.startup_timeout} s (see {out}/logs)')
+                return EXIT_STARTUP
+            monitor.spin(0.1)
+            missing = monitor.up([c.name for c in plan.children[:-1]])
+        sup.start(plan.children[-1])
+        view = ProgressView(args.episodes, args.block, args.quiet, tty)
+        while not interrupted:
+            monitor.spin(0.1)
+            if (code := sup.check()) is not None:
+                return code
+            if view.update(monitor.rows):
+                break
+        if interrupted:
+            code = EXIT_INTERRUPTED
+            say('clis run: interrupted, stopping the graph')
+        else:
+            say(f'clis run: {view.summary()}')
+    except ExternalShutdownException:
+        code = EXIT_INTERRUPTED
+    finally:
+        sup.stop()
+        monitor.node.destroy_node()
+        rclpy.try_shutdown()
+        signal.signal(signal.SIGINT, old)
+    return code

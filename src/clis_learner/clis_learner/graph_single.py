@@ -1,0 +1,88 @@
+"""``clis run --single-process``: every node of the graph in one process and one executor.
+
+Like a ROS 2 component container: the same node classes as the ``ros2 run`` executables, with
+the same parameters (one ``--ros-args`` list, each node declaring only its own keys), served by
+one ``SingleThreadedExecutor`` that the simulator's pacing loop (:func:`cr_sim.sim_node.run`)
+spins. Messages between the nodes still go through Fast DDS (rclpy has no intra-process path).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import signal
+import sys
+
+__all__ = ['run_single']
+
+
+def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
+    """Run ``plan`` (a :class:`clis_learner.graph.GraphPlan`) in this process; an exit code."""
+    from clis_modules.arbiter_node import ArbiterNode
+    from clis_modules.module_node import ModuleNode
+    from cr_sim.core.params import ConfigError
+    from cr_sim.sim_node import SimNode, run
+    import rclpy
+    from rclpy.clock import Clock, ClockType
+    from rclpy.executors import SingleThreadedExecutor
+
+    from clis_learner.graph import (
+        EXIT_CONFIG,
+        EXIT_INTERRUPTED,
+        EXIT_OK,
+        Monitor,
+        ProgressView,
+        _ros_literal,
+    )
+    from clis_learner.learner_node import LearnerNode
+
+    ros_args = ['clis_run', '--ros-args']
+    for f in args.params:
+        ros_args += ['--params-file', str(f)]
+    for child in plan.children:
+        for key, value in child.params.items():
+            ros_args += ['-p', f'{key}:={_ros_literal(value)}']
+    rclpy.init(args=ros_args)
+    factories = {'learner': LearnerNode, 'arbiter': ArbiterNode, 'sim': SimNode}
+    nodes = []
+    executor = SingleThreadedExecutor()
+    try:
+        for child in plan.children:
+            factory = factories.get(child.name)
+            nodes.append(factory() if factory else ModuleNode(child.name))
+    except (ConfigError, ValueError) as exc:
+        say(f'clis run: bad parameter: {exc}')
+        rclpy.try_shutdown()
+        return EXIT_CONFIG
+    monitor = Monitor()
+    view = ProgressView(args.episodes, args.block, args.quiet,
+                        sys.stderr.isatty() and not args.quiet)
+    state = {'code': EXIT_OK}
+
+    def on_wall() -> None:
+        if view.update(monitor.rows):
+            rclpy.try_shutdown()                 # ends the simulator's loop
+
+    monitor.node.create_timer(0.2, on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
+    for node in [*nodes, monitor.node]:
+        executor.add_node(node)
+    try:
+        run(nodes[-1], executor)                 # the simulator is the plan's last child
+    except KeyboardInterrupt:
+        state['code'] = EXIT_INTERRUPTED
+    except Exception as exc:  # noqa: BLE001 - reported, then the graph is stopped
+        if rclpy.ok():
+            raise
+        del exc
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        for node in nodes:
+            close = getattr(node, 'close', None)
+            if callable(close):
+                close()
+            node.destroy_node()
+        monitor.node.destroy_node()
+        rclpy.try_shutdown()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    say(f'clis run: {"interrupted" if state["code"] else view.summary()}')
+    return state['code']

@@ -1,0 +1,108 @@
+"""Which decisions an instant waits for, when the arbiter answers every instant (lockstep).
+
+Under sim time with ``node.lockstep`` the simulator holds its clock at each instant ``t`` until
+a command stamped ``t`` (or later) arrives (:mod:`cr_sim.core.gate`). The arbiter answers
+instant ``t`` once every module whose decision is due at ``t`` has proposed on the readings of
+``t``: then the :class:`~clis_modules.core.arbiter.Selector` gets those proposals together, as
+in the headless runner, and the command in force is sent stamped ``t``.
+
+Due at ``t``: module i decides at ``t_0 + l tau_i`` (its timer is aligned to the episode start,
+as in the headless runner). A module that does not deliver within ``timeout`` wall seconds (it
+died, or is restarting) is *missing*: no instant waits for it until it proposes again. Pure:
+wall times are passed in.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from clis_modules.core.decider import Proposal
+
+__all__ = ['TickBarrier']
+
+#: Two stamps closer than this [s] are the same instant.
+_TOL = 1e-6
+
+
+class TickBarrier:
+    """The instants waiting for their decisions (module docstring).
+
+    Parameters
+    ----------
+    names : sequence of str
+        Module names, in index order.
+    periods : array_like, shape (N,)
+        Decision periods ``tau_i`` [s].
+    timeout : float
+        Wall seconds an instant waits for a due decision before the module counts as missing.
+    """
+
+    def __init__(self, names: Sequence[str], periods: ArrayLike, timeout: float) -> None:
+        self.names = tuple(names)
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.periods = np.asarray(periods, dtype=np.float64)
+        self.timeout = float(timeout)
+        self.running = False
+        self.t0 = -math.inf
+        self.missing: set[int] = set()
+        self.inbox: list[Proposal] = []
+        self.open: list[tuple[float, float]] = []         # (instant, wall deadline)
+
+    def begin_episode(self, t0: float) -> None:
+        """An episode starts at ``t0``: instants before it are answered by nobody."""
+        self.running, self.t0 = True, float(t0)
+        self.open = [(t, d) for t, d in self.open if t >= t0 - _TOL]
+        self.inbox = [p for p in self.inbox if p.t >= t0 - _TOL]
+
+    def end_episode(self) -> None:
+        self.running = False
+
+    def on_tick(self, t: float, now: float) -> None:
+        """The clock reached instant ``t`` (wall time ``now``)."""
+        if not self.open or t > self.open[-1][0] + _TOL:
+            self.open.append((float(t), now + self.timeout))
+
+    def on_proposal(self, p: Proposal) -> None:
+        i = self.index[p.module]
+        self.missing.discard(i)
+        self.inbox.append(p)
+
+    def due(self, t: float) -> np.ndarray:
+        """Modules whose decision is due at ``t`` and not missing, shape (N,), bool."""
+        # decisions at t_0 + l tau_i
+        steps = (t - self.t0) / self.periods
+        due = (np.abs(steps - np.round(steps)) * self.periods <= _TOL) & (steps > -_TOL)
+        for i in self.missing:
+            due[i] = False
+        return due
+
+    def ready(self, now: float) -> list[tuple[float, list[Proposal]]]:
+        """The instants that can be answered at wall time ``now``, oldest first, each with
+        the proposals stamped up to it (those of its due decisions, and any late ones)."""
+        out: list[tuple[float, list[Proposal]]] = []
+        while self.running and self.open:
+            t, deadline = self.open[0]
+            due = self.due(t)
+            have = {self.index[p.module] for p in self.inbox if abs(p.t - t) <= _TOL}
+            waiting = [i for i in np.flatnonzero(due) if i not in have]
+            if waiting and now < deadline:
+                break
+            self.missing.update(int(i) for i in waiting)
+            ps = [p for p in self.inbox if p.t <= t + _TOL]
+            self.inbox = [p for p in self.inbox if p.t > t + _TOL]
+            self.open.pop(0)
+            out.append((t, ps))
+        return out
+
+    @property
+    def waiting_for(self) -> list[str]:
+        """Names of the modules the oldest open instant waits for (diagnostics)."""
+        if not self.open:
+            return []
+        t = self.open[0][0]
+        have = {p.module for p in self.inbox if abs(p.t - t) <= _TOL}
+        return [n for n, d in zip(self.names, self.due(t)) if d and n not in have]

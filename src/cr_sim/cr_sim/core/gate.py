@@ -1,0 +1,139 @@
+"""When the robot interface lets an episode run: the learner's and the arbiter's gates.
+
+On the real Cyber Rodent the learner learns while the robot wanders to its next start, and the
+robot does not move before it has a command. Under sim time the simulator must wait for the
+same two things explicitly, or it outruns the graph (a tick takes microseconds):
+
+- **learner gate** (``wait_for_learner``): after an episode ends (and before the first one),
+  the next episode starts only once the learner has reported that episode on its progress
+  topic (or ``learner_timeout`` wall seconds passed). The start then announces the parameter
+  version the learner reached, so that the modules wait for those parameters.
+- **lockstep** (``lockstep``): after publishing the readings of an instant, the clock stands
+  there until a command decided on readings of that instant arrives (its stamp is at or after
+  it), or ``command_timeout`` wall seconds passed. The controller (the CLIS arbiter) answers
+  every instant once every decision due then is in, so that, as in the headless runner, each
+  decision is made on the readings of its instant and acts from that instant on, however slow
+  the machine. After a timeout (no controller) the clock runs free until a command arrives.
+
+A pure state machine: times are passed in (wall seconds, any monotonic origin), so the
+simulator node and the bridge share it and tests drive it without ROS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+__all__ = ['EpisodeGate']
+
+#: Two stamps closer than this [s] are the same instant.
+_TOL = 1e-6
+
+
+@dataclass
+class EpisodeGate:
+    """The gates of the module docstring.
+
+    Parameters
+    ----------
+    wait_for_learner, learner_timeout : bool, float
+        Learner gate and its wall timeout [s].
+    lockstep, command_timeout : bool, float
+        Lockstep and its wall timeout [s].
+    resend_period : float
+        While waiting for a command, the readings are published again this often [wall s]
+        (a message lost while the graph was connecting does not stall the run).
+
+    Attributes
+    ----------
+    state : str
+        ``'run'`` (the clock runs), ``'learner'`` (waiting to start the next episode) or
+        ``'command'`` (waiting for the command of the instant just published).
+    free : bool
+        Lockstep suspended after a timeout, until the next command.
+    learned : tuple of int
+        ``(episode, version)`` the learner reported last (``(-1, 0)``: nothing yet).
+    """
+
+    wait_for_learner: bool = False
+    learner_timeout: float = 30.0
+    lockstep: bool = False
+    command_timeout: float = 2.0
+    resend_period: float = 0.2
+
+    def __post_init__(self) -> None:
+        self.state = 'run'
+        self.learned = (-1, 0)
+        self.episode = 0                 # the episode waited for ('learner') or running
+        self.t = -math.inf               # the instant waiting for its command (sim time)
+        self.deadline = math.inf         # wall deadline of the current wait
+        self.free = False
+        self.resend_at = math.inf
+
+    @property
+    def holding(self) -> bool:
+        """Whether the clock must stand still."""
+        return self.state != 'run'
+
+    def first(self, now: float) -> bool:
+        """Before the first episode: whether to start it at once (else wait for the learner,
+        whose first report, episode 0, says it is up)."""
+        return self.ended(0, now)
+
+    def ended(self, episode: int, now: float) -> bool:
+        """Episode ``episode`` ended at wall time ``now``: whether to start the next at once."""
+        self.episode = episode
+        if not self.wait_for_learner or self.learned[0] >= episode:
+            self.state = 'run'
+            return True
+        self.state, self.deadline = 'learner', now + self.learner_timeout
+        return False
+
+    def started(self, episode: int) -> None:
+        """Episode ``episode`` started."""
+        self.episode = episode
+
+    def published(self, t: float, now: float) -> None:
+        """The readings of sim time ``t`` were published at wall time ``now``."""
+        if self.lockstep and not self.free and self.state == 'run':
+            self.t, self.state, self.deadline = t, 'command', now + self.command_timeout
+            self.resend_at = now + self.resend_period
+
+    def on_progress(self, episode: int, version: int) -> None:
+        """The learner reported ``episode`` (``version`` = its parameter version)."""
+        self.learned = (episode, version)
+
+    def on_command(self, stamp: float | None) -> None:
+        """A command arrived, decided on readings at sim time ``stamp`` (None: unstamped)."""
+        if stamp is None or stamp >= self.t - _TOL:
+            self.free = False
+            if self.state == 'command':
+                self.state = 'run'
+
+    @property
+    def version(self) -> int:
+        """The learner's parameter version (announced at the next start)."""
+        return self.learned[1]
+
+    def poll(self, now: float) -> tuple[str | None, str | None]:
+        """At wall time ``now``: ``(action, warning)``; action ``'start'`` = start the next
+        episode now, ``'go'`` = let the clock run, ``'resend'`` = publish the readings of the
+        instant again, None = keep waiting. ``warning`` says which wait timed out."""
+        if self.state == 'learner':
+            if self.learned[0] >= self.episode:
+                self.state = 'run'
+                return 'start', None
+            if now >= self.deadline:
+                self.state = 'run'
+                return 'start', (f'the learner did not report episode {self.episode} within '
+                                 f'{self.learner_timeout} s: starting the next one')
+        elif self.state == 'command':
+            if now >= self.deadline:
+                self.state, self.free = 'run', True
+                return 'go', (f'no command for t = {self.t:.3f} s (episode {self.episode}) '
+                              f'within {self.command_timeout} s: the clock runs free until '
+                              'one arrives')
+            if now >= self.resend_at:
+                self.resend_at = now + self.resend_period
+                return 'resend', None
+        return None, None
