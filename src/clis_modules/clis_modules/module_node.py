@@ -143,7 +143,9 @@ class ModuleNode(GraphNode):
             self.get_logger().error(f'ignored parameters of {name!r} on my topic')
             return
         self.pending = (w, W, sigma, version)
-        if self.t0 is None or self.last_t < self.t0:      # no decision in this episode yet
+        # between episodes, before the first decision of one, or the parameters this episode
+        # was announced with (a module restarted mid-episode gets them late)
+        if self.t0 is None or self.last_t < self.t0 or version <= self.expect_version:
             self._apply_pending()
             self._try_decide()
 

@@ -1,0 +1,341 @@
+"""The CLIS node graph on real rclpy + Fast DDS: `clis run` as a user starts it.
+
+One short Async run is observed by a probe node (graph API, every stream): nodes, topics and
+types match the README's tables; each module proposes exactly at its period under sim time;
+lockstep answers every instant. A second run has a module and then the learner killed.
+The arbiter's choice frequencies are tested against (3) on a standalone arbiter node.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+import re
+import signal
+import subprocess
+import sys
+import time
+
+from clis_modules.core.arbiter import selection_probs
+from clis_modules.core.decider import Proposal
+from clis_modules.core.modules import condition_periods, load_module_params, module_gamma
+from cr_sim.conversions import from_time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import TwistStamped
+import numpy as np
+import pytest
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from ros_util import Probe
+from scipy import stats
+from sensor_msgs.msg import JointState
+
+from clis_modules import conversions as mconv
+
+pytestmark = pytest.mark.ros
+
+PERIODS = dict(condition_periods(load_module_params(), 'async'))
+MODULES = list(PERIODS)
+
+
+def clis_run(out: Path, *args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', 'run', '--out', str(out),
+                             '--quiet', *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+
+
+def finish(proc: subprocess.Popen, timeout: float) -> tuple[int, str]:
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        pytest.fail(f'clis run did not finish within {timeout} s:\n{out}')
+    return proc.returncode, out
+
+
+def readme_tables(repo: Path) -> dict[str, str]:
+    """``{topic: pkg/msg/Type}`` of the README's robot-interface and graph topic tables."""
+    text = (repo / 'README.md').read_text()
+    topics = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip('|').split('|')]
+        if len(cells) < 3 or not cells[0].startswith('`'):
+            continue
+        m = re.match(r'(\w+)/(\w+)', cells[1])
+        if m is None:
+            continue
+        for name in re.findall(r'`([^`]+)`', cells[0]):
+            topics['/' + name.lstrip('/')] = f'{m.group(1)}/msg/{m.group(2)}'
+    return topics
+
+
+def stamp(msg) -> float:
+    return from_time(msg.header.stamp)
+
+
+def listen_all(probe: Probe) -> None:
+    latched = True
+    for name in MODULES:
+        probe.listen(JointState, f'{name}/proposal')
+        probe.listen(JointState, f'{name}/params', latched)
+    probe.listen(JointState, 'arbiter/selection')
+    probe.listen(JointState, 'arbiter/action')
+    probe.listen(TwistStamped, 'cmd_vel')
+    probe.listen(JointState, 'wheels')
+    probe.listen(DiagnosticArray, 'episode', latched)
+    probe.listen(DiagnosticArray, 'learner/progress', latched)
+
+
+def learned(probe: Probe) -> list[dict[str, str]]:
+    rows = []
+    for msg in probe.msgs['learner/progress']:
+        values = {kv.key: kv.value for kv in msg.status[0].values}
+        if values.get('learned') == '1':
+            rows.append(values)
+    return rows
+
+
+def episodes(probe: Probe) -> list[tuple[float, float]]:
+    """(t0, t_end) of every ended episode seen."""
+    starts, out = {}, []
+    for msg in probe.msgs['episode']:
+        values = {kv.key: kv.value for kv in msg.status[0].values}
+        t, event = stamp(msg), msg.status[0].message
+        if event == 'start':
+            starts[values['episode']] = t
+        elif values.get('episode') in starts:
+            out.append((starts[values['episode']], t))
+    return out
+
+
+@pytest.fixture(scope='module')
+def async_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp('graph') / 'run'
+    probe = Probe('graph_probe')
+    listen_all(probe)
+    proc = clis_run(out, '--condition', 'async', '--episodes', '3', '--seed', '4')
+    graph = {}
+
+    def seen_all() -> bool:
+        graph['nodes'] = set(probe.node.get_node_names())
+        graph['topics'] = dict(probe.node.get_topic_names_and_types())
+        return len(learned(probe)) >= 1 and {*MODULES, 'sim', 'arbiter', 'learner',
+                                             'clis_run'} <= graph['nodes']
+    ok = probe.spin_until(seen_all, 180)
+    probe.spin_until(lambda: proc.poll() is not None, 240)
+    code, text = finish(proc, 30)
+    yield {'probe': probe, 'graph': graph, 'code': code, 'out': out, 'text': text, 'ok': ok}
+    probe.close()
+
+
+def test_clis_run_learns_and_writes_the_curve(async_run):
+    assert async_run['ok'] and async_run['code'] == 0, async_run['text']
+    out = async_run['out']
+    with open(out / 'episodes.csv') as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 3
+    assert [int(r['version']) for r in rows] == [1, 2, 3]
+    assert all(math.isclose(sum(float(r[f'p_{m}']) for m in MODULES), 1.0) for r in rows)
+    for name in ('checkpoint.npz', 'curve.csv', 'curve.png', 'selection.png', 'logs/sim.log'):
+        assert (out / name).is_file(), name
+    assert '3 episodes learned' in async_run['text']
+
+
+def test_nodes_topics_and_types_match_the_readme(async_run, repo):
+    graph = async_run['graph']
+    assert {'sim', 'innate', 'view', 'place', 'arbiter', 'learner'} <= graph['nodes']
+    documented = readme_tables(repo)
+    topics = {k: v[0] for k, v in graph['topics'].items()
+              if k not in ('/rosout', '/parameter_events')}
+    assert set(topics) - set(documented) == set(), 'topics missing from the README tables'
+    for topic, msg_type in documented.items():
+        if topic == '/reset':                                   # a service
+            continue
+        assert topic in topics, f'{topic} is documented but not in the graph'
+        assert topics[topic] == msg_type, topic
+
+
+def test_modules_propose_at_their_periods_under_sim_time(async_run):
+    probe = async_run['probe']
+    spans = episodes(probe)
+    assert spans
+    for name, tau in PERIODS.items():
+        t = np.array(sorted({stamp(m) for m in probe.msgs[f'{name}/proposal']}))
+        for t0, t_end in spans:
+            inside = t[(t >= t0 - 1e-6) & (t <= t_end + 1e-6)]
+            assert inside.size >= min(2, 1 + int((t_end - t0) / tau)), (name, t0, t_end)
+            assert inside[0] == pytest.approx(t0, abs=1e-6)          # decides at the start
+            gaps = np.diff(inside)
+            assert np.all(np.abs(gaps - tau) <= 0.1 * tau), (name, gaps)
+
+
+def test_lockstep_answers_every_instant_and_draws_once_per_episode(async_run):
+    probe = async_run['probe']
+    cmd = {round(stamp(m), 6) for m in probe.msgs['cmd_vel']}
+    for t0, t_end in episodes(probe):
+        instants = [round(stamp(m), 6) for m in probe.msgs['wheels']
+                    if t0 - 1e-6 <= stamp(m) < t_end - 1e-6]
+        assert instants and all(t in cmd for t in instants)
+        draws = [m for m in probe.msgs['arbiter/selection']
+                 if t0 - 1e-6 <= stamp(m) <= t_end + 1e-6]
+        assert len(draws) == 1 and stamp(draws[0]) == pytest.approx(t0, abs=1e-6)
+        assert list(draws[0].position) == pytest.approx([1 / 3] * 3, abs=0.02)
+
+
+def test_clis_run_bad_parameter_names_the_key(tmp_path):
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('/**:\n  ros__parameters:\n    common:\n      beta: -1.0\n')
+    code, text = finish(clis_run(tmp_path / 'out', '--episodes', '1', '--params', str(bad)),
+                        120)
+    assert code == 2, text
+    assert 'common.beta' in text
+
+
+def _pid(parent: int, exe: str) -> int:
+    out = subprocess.run(['pgrep', '-P', str(parent), '-f', f'/lib/[a-z_]+/{exe}( |$)'],
+                         capture_output=True, text=True).stdout.split()
+    assert len(out) == 1, (exe, out)
+    return int(out[0])
+
+
+def test_killed_module_and_learner_rejoin_without_losing_an_update(tmp_path):
+    out = tmp_path / 'run'
+    probe = Probe('kill_probe')
+    listen_all(probe)
+    proc = clis_run(out, '--condition', 'async', '--episodes', '40', '--seed', '5')
+    try:
+        assert probe.spin_until(lambda: len(learned(probe)) >= 2, 180), 'no episode learned'
+        # -- a module: kill the acting one early in an episode
+        assert probe.spin_until(lambda: probe.msgs['arbiter/selection']
+                                and stamp(probe.msgs['arbiter/selection'][-1])
+                                > max((stamp(m) for m in probe.msgs['wheels']), default=0) - 1,
+                                60)
+        victim = probe.msgs['arbiter/selection'][-1].header.frame_id
+        tau = PERIODS[victim]
+        subprocess.run(['kill', '-9', str(_pid(proc.pid, victim))], check=True)
+        probe.spin_for(1.0)
+        t_last = max(stamp(m) for m in probe.msgs[f'{victim}/proposal'])
+        n_before = len(probe.msgs[f'{victim}/proposal'])
+
+        def others_drive() -> bool:
+            return any(m.header.frame_id not in ('', victim) and stamp(m) > t_last
+                       for m in probe.msgs['arbiter/action'])
+        assert probe.spin_until(others_drive, 60)
+        first = min(stamp(m) for m in probe.msgs['arbiter/action']
+                    if m.header.frame_id not in ('', victim) and stamp(m) > t_last)
+        ended = [t for t0, t in episodes(probe) if t_last <= t <= first]
+        if not ended:                       # the same episode: replaced within two periods
+            assert first - t_last <= 2 * tau + 1e-6, (victim, t_last, first)
+        # ... and the restarted module rejoins with the current parameters
+        assert probe.spin_until(lambda: len(probe.msgs[f'{victim}/proposal']) > n_before + 2,
+                                120), 'the module did not come back'
+
+        def current() -> bool:
+            latest = int(probe.msgs[f'{victim}/params'][-1].position[0])
+            return any(int(m.position[6]) == latest
+                       for m in probe.msgs[f'{victim}/proposal'][n_before:])
+        assert probe.spin_until(current, 60), 'the restarted module has old parameters'
+
+        # -- the learner: kill it, it resumes from its checkpoint
+        n = len(learned(probe))
+        assert probe.spin_until(lambda: len(learned(probe)) > n, 120)
+        params_before = {m: probe.msgs[f'{m}/params'][-1] for m in MODULES}
+        subprocess.run(['kill', '-9', str(_pid(proc.pid, 'learner'))], check=True)
+        v_before = int(params_before['view'].position[0])
+        n_after_kill = len(probe.msgs['view/params'])
+        assert probe.spin_until(lambda: len(probe.msgs['view/params']) > n_after_kill, 120), \
+            'the learner did not come back'
+        resumed = probe.msgs['view/params'][n_after_kill]
+        v_resumed = int(resumed.position[0])
+        assert v_resumed >= v_before
+        if v_resumed == v_before:                  # nothing learned since: the same weights
+            assert list(resumed.velocity) == list(params_before['view'].velocity)
+            assert list(resumed.effort) == list(params_before['view'].effort)
+        k = len(learned(probe))
+        assert probe.spin_until(lambda: len(learned(probe)) >= k + 2, 180)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        code, text = finish(proc, 60)
+        probe.close()
+    assert code == 130, text
+    assert text.count('restarting') >= 2, text
+    with open(out / 'episodes.csv') as fh:
+        versions = [int(r['version']) for r in csv.DictReader(fh)]
+    assert versions == sorted(set(versions)), 'a version repeated or went back'
+    gaps = np.diff(versions)
+    assert np.all(gaps >= 1) and np.count_nonzero(gaps > 1) <= 1, versions
+    assert subprocess.run(['pgrep', '-P', str(proc.pid)], capture_output=True).stdout == b''
+
+
+def test_arbiter_choice_frequencies_match_eq3():
+    """A standalone arbiter node (wall time, a draw at every proposal) against (3)."""
+    beta = 60.0
+    values = {'innate': 0.2, 'view': 0.5, 'place': 0.3}
+    params = load_module_params()
+    gammas = np.array([module_gamma(params.common, PERIODS[m]) for m in MODULES])
+    expected = selection_probs([values[m] for m in MODULES], gammas, beta)
+    assert expected.max() - expected.min() > 0.2          # the test can tell them apart
+    arb = subprocess.Popen([sys.executable, '-m', 'clis_modules.arbiter_node', '--ros-args',
+                            '-p', 'use_sim_time:=false', '-p', 'arbiter.selection:=decision',
+                            '-p', f'common.beta:={beta}', '-p', 'graph.condition:=async'],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    probe = Probe('arbiter_probe')
+    try:
+        probe.listen(JointState, 'arbiter/selection')
+        pubs = {m: probe.node.create_publisher(JointState, f'{m}/proposal', 100)
+                for m in MODULES}
+        episode = probe.node.create_publisher(
+            DiagnosticArray, 'episode',
+            QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()),
+                                60)
+        now = probe.node.get_clock().now().nanoseconds * 1e-9
+        msg = DiagnosticArray(status=[DiagnosticStatus(message='start', name='episode',
+                                                       values=[KeyValue(key='episode',
+                                                                        value='1')])])
+        msg.header.stamp = probe.node.get_clock().now().to_msg()
+        episode.publish(msg)
+        probe.spin_for(0.5)
+        rounds = 400
+        for _ in range(rounds):
+            t = probe.node.get_clock().now().nanoseconds * 1e-9
+            for m in MODULES:
+                p = Proposal(m, t, np.zeros(3), np.zeros(2), np.zeros(2), 0.1, values[m], 0)
+                pubs[m].publish(mconv.proposal_msg(p, t))
+            probe.spin_for(0.01)
+        assert probe.spin_until(lambda: len(probe.msgs['arbiter/selection']) >= 3 * rounds - 3,
+                                60)
+        draws = [m for m in probe.msgs['arbiter/selection'] if stamp(m) > now]
+        full = [m for m in draws if np.all(np.array(m.position) > 0)]
+        for m in full[:20]:
+            assert list(m.position) == pytest.approx(list(expected), rel=1e-9)
+        counts = np.array([sum(m.header.frame_id == name for m in full) for name in MODULES])
+        chi2 = stats.chisquare(counts, expected * counts.sum())
+        assert chi2.pvalue > 1e-3, (counts, expected)
+        # and the test has power: uniform choices would be rejected
+        assert stats.chisquare(counts).pvalue < 1e-3
+    finally:
+        probe.close()
+        arb.send_signal(signal.SIGINT)
+        arb.communicate(timeout=20)
+
+
+def test_loopback_only_while_the_graph_runs(tmp_path):
+    from test_workspace import tx_packets
+    proc = clis_run(tmp_path / 'out', '--condition', 'view', '--episodes', '2')
+    deltas = []
+    try:
+        time.sleep(3)
+        for _ in range(3):
+            before = tx_packets()
+            time.sleep(3)
+            delta = {k: tx_packets()[k] - before[k] for k in before}
+            deltas.append(delta)
+            if not any(delta.values()):
+                break
+        else:
+            pytest.fail(f'non-loopback interfaces transmitted while the graph ran: {deltas}')
+    finally:
+        code, text = finish(proc, 180)
+    assert code == 0, text
