@@ -39,3 +39,13 @@ def test_sensor_messages_round_trip():
         pytest.approx(t), pytest.approx(-0.1), 4)
     t_e, event, values = conv.episode_from_msg(conv.episode_msg('reached', t, episode=3))
     assert (t_e, event, values) == (pytest.approx(t), 'reached', {'episode': '3'})
+
+
+def test_to_time_rounds_to_the_nearest_nanosecond():
+    # a stamp a hair below a whole second must not wrap back to the start of that second
+    from cr_sim.conversions import from_time, to_time
+    for t in (180.99999999997, 181.0, 0.05 * 3620, 59.9999999999, 1e-10, 12.3456789):
+        stamp = to_time(t)
+        assert 0 <= stamp.nanosec < 1_000_000_000
+        assert abs(from_time(stamp) - t) < 1e-9
+    assert (to_time(180.99999999997).sec, to_time(180.99999999997).nanosec) == (181, 0)

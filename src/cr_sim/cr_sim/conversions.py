@@ -40,9 +40,10 @@ EPISODE_STATUS = 'episode'
 
 
 def to_time(t: float) -> Time:
-    """Seconds (float) to builtin_interfaces/Time."""
-    sec = math.floor(t)
-    return Time(sec=int(sec), nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
+    """Seconds (float) to builtin_interfaces/Time, rounded to the nearest nanosecond (so that
+    180.99999999997 is 181 s, not 180 s + a nanosecond field that wrapped around)."""
+    sec, nanosec = divmod(int(round(t * 1e9)), 1_000_000_000)
+    return Time(sec=int(sec), nanosec=int(nanosec))
 
 
 def from_time(stamp: Time) -> float:
