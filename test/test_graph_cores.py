@@ -196,3 +196,71 @@ def test_episode_row_from_memory():
     assert row['ret'] == pytest.approx(0.9) and row['behaviour'] == 'view'
     assert row['p_view'] == 0.6 and row['v_innate'] == 1.0
     assert row['log10c_view'] == pytest.approx(-5.0) and 'c_final_innate' not in row
+
+
+# ---------------------------------------------------------------------------- lockstep cores
+
+def test_episode_gate_learner_wait_and_lockstep():
+    from cr_sim.core.gate import EpisodeGate
+    gate = EpisodeGate(wait_for_learner=True, learner_timeout=5.0, lockstep=True,
+                       command_timeout=1.0, resend_period=0.2)
+    assert not gate.first(now=0.0) and gate.holding           # waits for the learner to be up
+    assert gate.poll(1.0) == (None, None)
+    gate.on_progress(0, 0)
+    assert gate.poll(1.1) == ('start', None) and not gate.holding
+    gate.started(1)
+    gate.published(t=0.0, now=1.2)
+    assert gate.holding
+    gate.on_command(stamp=-0.05)                              # an old command does not count
+    assert gate.holding
+    assert gate.poll(1.45) == ('resend', None)                # the readings again
+    gate.on_command(stamp=0.0)
+    assert not gate.holding
+    gate.published(t=0.05, now=2.0)
+    action, warning = gate.poll(3.1)                          # no controller: run free
+    assert action == 'go' and 't = 0.050' in warning and not gate.holding
+    gate.published(t=0.1, now=3.2)
+    assert not gate.holding                                   # free until a command arrives
+    gate.on_command(stamp=0.1)
+    gate.published(t=0.15, now=3.3)
+    assert gate.holding
+    gate.on_command(stamp=0.15)
+    assert not gate.ended(1, now=4.0) and gate.state == 'learner'
+    gate.on_progress(1, 1)
+    assert gate.poll(4.1) == ('start', None) and gate.version == 1
+    assert not gate.ended(2, now=5.0)
+    action, warning = gate.poll(10.5)                         # the learner is gone
+    assert action == 'start' and 'episode 2' in warning
+
+
+def test_tick_barrier_waits_for_the_decisions_due_then():
+    from clis_modules.core.lockstep import TickBarrier
+    barrier = TickBarrier(['innate', 'view'], [0.25, 0.5], timeout=0.5)
+
+    def p(module, t):
+        return Proposal(module, t, np.zeros(1), np.zeros(2), np.zeros(2), 0.1, 0.0, 0)
+    barrier.on_tick(10.0, now=0.0)
+    assert barrier.ready(0.0) == []                           # no episode yet: no answer
+    barrier.begin_episode(10.0)
+    assert barrier.waiting_for == ['innate', 'view']          # both decide at t_0
+    barrier.on_proposal(p('view', 10.0))
+    assert barrier.ready(0.01) == []
+    barrier.on_proposal(p('innate', 10.0))
+    [(t, ps)] = barrier.ready(0.02)
+    assert t == 10.0 and {q.module for q in ps} == {'innate', 'view'}
+    barrier.on_tick(10.05, now=0.03)
+    assert [t for t, _ in barrier.ready(0.03)] == [10.05]     # nobody due
+    for k in range(2, 5):
+        barrier.on_tick(10.0 + 0.05 * k, now=0.04)
+    assert [t for t, _ in barrier.ready(0.04)] == [10.1, 10.15, 10.2]
+    barrier.on_tick(10.25, now=0.05)
+    assert barrier.waiting_for == ['innate']                  # innate is due at 10.25
+    assert barrier.ready(0.3) == []
+    # it does not deliver: after the timeout the instant is answered and innate is missing
+    assert barrier.ready(0.56) == [(10.25, [])] and barrier.missing == {0}
+    barrier.on_tick(10.5, now=0.6)
+    assert barrier.waiting_for == ['view']                    # a missing module is not awaited
+    barrier.on_proposal(p('innate', 10.5))                    # back: no longer missing
+    barrier.on_proposal(p('view', 10.5))
+    [(t, ps)] = barrier.ready(0.61)
+    assert t == 10.5 and len(ps) == 2 and barrier.missing == set()
