@@ -58,12 +58,14 @@ install/.stamp: $(VENV)/.stamp $(SOURCES)
 	  || { mkdir -p log; cat log/colcon-build.txt; exit 1; }
 	@touch $@
 
-# The main job on the simulator: check the ROS setup, then a short learning experiment
-# (Innate, View, Sync, Async; 2 seeds x 300 episodes; about 3 min) with its figures.
-RUN_OUT ?= results/run
+# The main job on the simulator: check the ROS setup, then the CLIS node graph (simulator,
+# innate/view/place modules, arbiter, learner as processes) learning live in the Async
+# condition for 5 minutes, with a summary and the learning curve (OUT/curve.png).
+# The headless experiment is one command away: clis experiment --help.
+RUN_OUT ?= results/run/async
 run: setup
 	@$(ENV) && clis doctor
-	@$(ENV) && clis experiment --conditions innate,view,sync,async --episodes 300 --seeds 2 \
+	@$(ENV) && clis run --condition async --episodes 1000 --time-limit 5 \
 	  --out $(RUN_OUT) $(RUN_ARGS)
 
 lint: setup

@@ -44,6 +44,7 @@ import time
 from typing import Any
 
 from clis_modules.core.modules import CONDITIONS
+import numpy as np
 
 __all__ = ['Child', 'GraphPlan', 'plan_graph', 'register', 'main', 'write_curve']
 
@@ -295,16 +296,23 @@ class Monitor:
 class ProgressView:
     """The one-line progress of a run, from the learner's progress rows."""
 
-    def __init__(self, target: int, block: int, quiet: bool, tty: bool) -> None:
+    def __init__(self, target: int, block: int, quiet: bool, tty: bool,
+                 time_limit: float = 0.0) -> None:
         self.target, self.block, self.quiet, self.tty = target, block, quiet, tty
+        self.time_limit = time_limit * 60.0
         self.t_start = time.monotonic()
         self.shown = 0
         self.learned = 0
 
+    @property
+    def out_of_time(self) -> bool:
+        return self.time_limit > 0 and time.monotonic() - self.t_start >= self.time_limit
+
     def update(self, rows: list[dict[str, str]]) -> bool:
-        """Show the newest row; True once ``target`` episodes are learned."""
+        """Show the newest row; True once ``target`` episodes are learned (or the time limit
+        is reached)."""
         if len(rows) <= self.shown:
-            return False
+            return self.out_of_time
         self.shown = len(rows)
         done = [r for r in rows if r.get('learned') == '1']
         self.learned = len(done)
@@ -312,7 +320,7 @@ class ProgressView:
             line = self.line(rows[-1], done, time.monotonic() - self.t_start)
             print(('\r\033[K' + line[:200]) if self.tty else line, end='' if self.tty else '\n',
                   file=sys.stderr, flush=True)
-        return self.learned >= self.target
+        return self.learned >= self.target or self.out_of_time
 
     def line(self, last: dict[str, str], done: list[dict[str, str]], wall: float) -> str:
         recent = done[-self.block:]
@@ -356,6 +364,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--arena', type=str, default='', help='arena file (default config/arena.yaml)')
     p.add_argument('--block', type=int, default=50,
                    help='episodes per point of the learning curve (default 50, the paper)')
+    p.add_argument('--time-limit', type=float, default=0.0, metavar='MIN',
+                   help='stop cleanly after this many minutes of learning even if fewer '
+                        'episodes were learned (0 = no limit; `make run` uses 5)')
     p.add_argument('--max-restarts', type=int, default=3,
                    help='restarts per child before giving up (default 3)')
     p.add_argument('--startup-timeout', type=float, default=60.0,
@@ -382,6 +393,8 @@ def _check_args(args: argparse.Namespace) -> str | None:
         return f'--resume {args.resume}: no such checkpoint'
     if args.block < 1:
         return f'--block {args.block}: must be at least 1'
+    if args.time_limit < 0:
+        return f'--time-limit {args.time_limit}: must be >= 0 minutes'
     return None
 
 
@@ -412,8 +425,24 @@ def main(args: argparse.Namespace) -> int:
         code = _run_processes(plan, args, out, say, tty)
     curve = write_curve(out, args.block)
     if curve is not None:
+        say(summary(out, args.block))
         say(f'learning curve: {curve[0]}, {curve[1]}')
     return code
+
+
+def summary(out: Path, block: int) -> str:
+    """A few lines on the run from ``OUT/episodes.csv``: successes early and late, who acted."""
+    with open(out / 'episodes.csv', newline='') as fh:
+        rows = list(csv.DictReader(fh))
+    n = len(rows)
+    k = max(1, min(block, n // 2 or 1))
+    first = sum(int(float(r['reached'])) for r in rows[:k])
+    last = sum(int(float(r['reached'])) for r in rows[-k:])
+    names = [c[len('share_'):] for c in rows[0] if c.startswith('share_')]
+    shares = ', '.join(f'{m} {np.mean([float(r[f"share_{m}"]) for r in rows[-k:]]):.0%}'
+                       for m in names)
+    return (f'summary: {n} episodes learned; reached {first}/{k} in the first {k}, '
+            f'{last}/{k} in the last {k}; who acted in the last {k}: {shares}')
 
 
 def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
@@ -444,7 +473,7 @@ def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
             monitor.spin(0.1)
             missing = monitor.up([c.name for c in plan.children[:-1]])
         sup.start(plan.children[-1])
-        view = ProgressView(args.episodes, args.block, args.quiet, tty)
+        view = ProgressView(args.episodes, args.block, args.quiet, tty, args.time_limit)
         while not interrupted:
             monitor.spin(0.1)
             if (code := sup.check()) is not None:

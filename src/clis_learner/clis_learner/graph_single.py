@@ -56,7 +56,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         return EXIT_CONFIG
     monitor = Monitor()
     view = ProgressView(args.episodes, args.block, args.quiet,
-                        sys.stderr.isatty() and not args.quiet)
+                        sys.stderr.isatty() and not args.quiet, args.time_limit)
     state = {'code': EXIT_OK}
 
     def on_wall() -> None:

@@ -1,0 +1,178 @@
+"""The full CLIS graph under sim time: real-time factor, CPU per node, sensor-to-cmd_vel latency.
+
+Starts ``clis run --condition async`` (simulator, three modules, arbiter, learner as separate
+processes, lockstep, every module timer firing) and observes it from this process for
+``--seconds`` of wall time after the first learned episode:
+
+- real-time factor: sim seconds per wall second (``/clock``), learner pauses included;
+- CPU per node: user + system time of each child process over the window, in % of one core;
+- latency: for every instant, wall time from the arrival of the readings (``wheels``, stamped
+  t) to the arrival of the ``cmd_vel`` stamped t (both seen by this process), p50 / p99;
+  at the instants where a module decides this includes that module's decision;
+- the same run with ``--single-process`` (every node in one process and one executor);
+- the executors: the same run with every node on rclpy's EventsExecutor, and the CPU of an
+  idle module node (no ``/clock``) with the EventsExecutor and the SingleThreadedExecutor.
+
+    python bench/bench_graph.py [--seconds 30] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_learner'))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
+from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
+
+TICK = os.sysconf('SC_CLK_TCK')
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICK
+
+
+def children(pid: int) -> dict[str, int]:
+    out = subprocess.run(['pgrep', '-P', str(pid), '-a'], capture_output=True, text=True).stdout
+    found = {}
+    for line in out.splitlines():
+        child, cmd = line.split(' ', 1)
+        for token in cmd.split():
+            if '/lib/' in token:                     # install/PKG/lib/PKG/EXE
+                found[token.rsplit('/', 1)[-1]] = int(child)
+                break
+    return found
+
+
+def measure(seconds: float, single: bool, executor: str = 'single') -> dict:
+    from geometry_msgs.msg import TwistStamped
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+
+    out = Path(tempfile.mkdtemp(prefix='bench_graph_'))
+    cmd = [sys.executable, '-m', 'clis_learner.cli', 'run', '--condition', 'async',
+           '--episodes', '100000', '--out', str(out), '--quiet']
+    if single:
+        cmd.append('--single-process')
+    if executor != 'single':
+        params = out / 'executor.yaml'
+        params.write_text(f'/**:\n  ros__parameters:\n    graph:\n      executor: {executor}\n')
+        cmd += ['--params', str(params)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    rclpy.init()
+    node = rclpy.create_node('bench_graph')
+    seen: dict[str, dict[float, float]] = {'wheels': {}, 'cmd_vel': {}}
+    clock: list[float] = []
+
+    def on(topic):
+        def cb(msg):
+            t = round(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, 6)
+            seen[topic].setdefault(t, time.monotonic())
+        return cb
+    node.create_subscription(JointState, 'wheels', on('wheels'), 100)
+    node.create_subscription(TwistStamped, 'cmd_vel', on('cmd_vel'), 100)
+    node.create_subscription(Clock, '/clock', lambda m: clock.append(
+        m.clock.sec + m.clock.nanosec * 1e-9), 100)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / 'episodes.csv').is_file() and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        pids = {'clis run': proc.pid} if single else children(proc.pid)
+        cpu0 = {name: cpu_seconds(pid) for name, pid in pids.items()}
+        for d in seen.values():
+            d.clear()
+        clock.clear()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            rclpy.spin_once(node, timeout_sec=0.01)
+        wall = time.monotonic() - t0
+        cpu = {name: 100 * (cpu_seconds(pid) - cpu0[name]) / wall for name, pid in pids.items()}
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(60)
+    lat = np.array([seen['cmd_vel'][t] - w for t, w in seen['wheels'].items()
+                    if t in seen['cmd_vel']]) * 1e3
+    sim = clock[-1] - clock[0] if len(clock) > 1 else 0.0
+    return {'single_process': single, 'executor': executor, 'wall_s': wall, 'sim_s': sim, 'rtf': sim / wall,
+            'cpu_percent': cpu, 'instants': int(lat.size),
+            'latency_ms_p50': float(np.percentile(lat, 50)) if lat.size else None,
+            'latency_ms_p99': float(np.percentile(lat, 99)) if lat.size else None}
+
+
+def idle_cpu(executor: str, seconds: float = 5.0) -> float:
+    """CPU (% of a core) of a view module node that gets no /clock, with ``executor``."""
+    proc = subprocess.Popen([sys.executable, '-m', 'clis_modules.module_node', 'view',
+                             '--ros-args', '-p', f'graph.executor:={executor}'],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(4.0)
+    c0, t0 = cpu_seconds(proc.pid), time.monotonic()
+    time.sleep(seconds)
+    cpu = 100 * (cpu_seconds(proc.pid) - c0) / (time.monotonic() - t0)
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(5)
+    except subprocess.TimeoutExpired:            # the EventsExecutor may not stop on SIGINT
+        proc.kill()
+        proc.wait()
+    return cpu
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument('--seconds', type=float, default=30.0)
+    ap.add_argument('--json', metavar='FILE')
+    args = ap.parse_args()
+    os.environ.pop('ROS_DOMAIN_ID', None)
+    apply_ros_env(domain_id=pick_domain_id())
+    multi = measure(args.seconds, single=False)
+    single = measure(args.seconds, single=True)
+    events_run = measure(args.seconds, single=False, executor='events')
+    events, default = idle_cpu('events'), idle_cpu('single')
+    for r in (multi, single, events_run):
+        print(f'{"one process" if r["single_process"] else "processes  "} ({r["executor"]} '
+              f'executor): real-time factor '
+              f'{r["rtf"]:.1f}x ({r["sim_s"]:.0f} s sim in {r["wall_s"]:.0f} s), latency p50 '
+              f'{r["latency_ms_p50"]:.2f} ms p99 {r["latency_ms_p99"]:.2f} ms over '
+              f'{r["instants"]} instants; CPU % of a core: '
+              + ', '.join(f'{k} {v:.0f}' for k, v in r['cpu_percent'].items()))
+    print(f'idle module node CPU: EventsExecutor {events:.0f}%, SingleThreadedExecutor '
+          f'{default:.0f}%')
+    if args.json:
+        cpu = ', '.join(f'{k} {v:.0f}%' for k, v in multi['cpu_percent'].items())
+        Path(args.json).write_text(json.dumps({
+            'processes': multi, 'single_process': single, 'events_executor': events_run,
+            'idle_cpu_events': events, 'idle_cpu_single': default, 'rows': [
+                {'measure': 'Async graph real-time factor under sim time (lockstep, every '
+                            'timer firing), processes | one process',
+                 'value': f'{multi["rtf"]:.1f}x | {single["rtf"]:.1f}x',
+                 'goal': '>= 20x (stretch 50x)'},
+                {'measure': 'sensor-to-cmd_vel latency p50 / p99 (processes)',
+                 'value': f'{multi["latency_ms_p50"]:.2f} / {multi["latency_ms_p99"]:.2f} ms',
+                 'goal': 'p99 <= 5 ms'},
+                {'measure': 'sensor-to-cmd_vel latency p50 / p99 (one process)',
+                 'value': f'{single["latency_ms_p50"]:.2f} / {single["latency_ms_p99"]:.2f} ms'},
+                {'measure': 'CPU per node, % of one core (processes)', 'value': cpu},
+                {'measure': 'Async graph real-time factor, processes: EventsExecutor | '
+                            'SingleThreadedExecutor',
+                 'value': f'{events_run["rtf"]:.1f}x | {multi["rtf"]:.1f}x'},
+                {'measure': 'idle module node CPU: EventsExecutor | SingleThreadedExecutor',
+                 'value': f'{events:.0f}% | {default:.0f}%'}]}, indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
