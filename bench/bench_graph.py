@@ -106,7 +106,8 @@ def measure(seconds: float, single: bool, executor: str = 'single') -> dict:
     lat = np.array([seen['cmd_vel'][t] - w for t, w in seen['wheels'].items()
                     if t in seen['cmd_vel']]) * 1e3
     sim = clock[-1] - clock[0] if len(clock) > 1 else 0.0
-    return {'single_process': single, 'executor': executor, 'wall_s': wall, 'sim_s': sim, 'rtf': sim / wall,
+    return {'single_process': single, 'executor': executor, 'wall_s': wall, 'sim_s': sim,
+            'rtf': sim / wall,
             'cpu_percent': cpu, 'instants': int(lat.size),
             'latency_ms_p50': float(np.percentile(lat, 50)) if lat.size else None,
             'latency_ms_p99': float(np.percentile(lat, 99)) if lat.size else None}
