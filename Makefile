@@ -62,11 +62,9 @@ install/.stamp: $(VENV)/.stamp $(SOURCES)
 # innate/view/place modules, arbiter, learner as processes) learning live in the Async
 # condition for 5 minutes, with a summary and the learning curve (OUT/curve.png).
 # The headless experiment is one command away: clis experiment --help.
-RUN_OUT ?= results/run/async
 run: setup
 	@$(ENV) && clis doctor
-	@$(ENV) && clis run --condition async --episodes 1000 --time-limit 5 \
-	  --out $(RUN_OUT) $(RUN_ARGS)
+	@$(ENV) && clis run --condition async --episodes 1000 --time-limit 5 $(RUN_ARGS)
 
 lint: setup
 	$(VENV)/bin/ruff check src test bench

@@ -407,6 +407,10 @@ def main(args: argparse.Namespace) -> int:
         args.out = Path('results/run') / (f'{args.condition}-seed{args.seed}-'
                                           f'{time.strftime("%Y%m%d-%H%M%S")}')
     out = args.out.resolve()
+    if (out / 'episodes.csv').is_file() and args.resume is None:
+        print(f'clis run: {out} already holds a run: continue it with --resume '
+              f'{out / "checkpoint.npz"}, or choose another --out', file=sys.stderr)
+        return EXIT_CONFIG
     out.mkdir(parents=True, exist_ok=True)
     plan = plan_graph(args.condition, args.seed, out, args.speed,
                       str(args.resume.resolve()) if args.resume else '', args.arena)
