@@ -129,3 +129,16 @@ def test_clis_doctor_passes(repo):
     assert out.returncode == 0, out.stdout + out.stderr
     assert 'doctor: PASS' in out.stdout
     assert 'loopback only' in out.stdout
+
+
+def test_picked_domain_ids_are_exclusive_while_held():
+    from clis_learner.ros_env import DOMAIN_RANGE, lock_path, pick_domain_id
+    a, b = pick_domain_id(), pick_domain_id()
+    assert a != b and all(DOMAIN_RANGE[0] <= d <= DOMAIN_RANGE[1] for d in (a, b))
+    # another process cannot claim them while this one lives
+    probe = ('import fcntl, os, sys; fd = os.open(sys.argv[1], os.O_RDWR); '
+             'fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)')
+    for d in (a, b):
+        out = subprocess.run([sys.executable, '-c', probe, str(lock_path(d))],
+                             capture_output=True, text=True)
+        assert out.returncode != 0 and 'BlockingIOError' in out.stderr

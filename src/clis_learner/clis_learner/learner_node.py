@@ -124,8 +124,15 @@ class LearnerNode(GraphNode):
 
     def _on_action(self, msg: JointState) -> None:
         t, u, acting = mconv.action_from_msg(msg)
-        if acting:                                          # '' = a stop: nobody acts
-            self.buffer.add_action(t, u, acting)
+        if not acting:                                      # '' = a stop: nobody acts
+            return
+        if acting not in self.names:
+            self.get_logger().error(
+                f'ignored an action of {acting!r}, not a module of condition '
+                f'{self.graph.condition} (another graph on this ROS_DOMAIN_ID?)',
+                throttle_duration_sec=5.0)
+            return
+        self.buffer.add_action(t, u, acting)
 
     def _on_selection(self, msg: JointState) -> None:
         # kept by stamp: a draw may arrive before the episode's start event

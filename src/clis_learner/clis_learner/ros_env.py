@@ -13,9 +13,11 @@ the environment of child processes); it imports no ROS.
 from __future__ import annotations
 
 from collections.abc import MutableMapping
+import fcntl
 import os
 from pathlib import Path
 import secrets
+import tempfile
 
 from cr_sim.core.params import config_dir
 
@@ -31,10 +33,37 @@ def loopback_profile() -> Path:
     return config_dir() / PROFILE_NAME
 
 
+#: Held for the life of the process: the domain id it claimed (see :func:`pick_domain_id`).
+_claimed: dict[int, int] = {}
+
+
+def lock_path(domain_id: int) -> Path:
+    """The lock file by which a process of the project claims ``domain_id`` on this machine."""
+    return Path(tempfile.gettempdir()) / f'clis-ros-domain-{domain_id}.lock'
+
+
 def pick_domain_id() -> int:
-    """A random ROS_DOMAIN_ID in :data:`DOMAIN_RANGE` for one run (or one test session)."""
+    """A ROS_DOMAIN_ID in :data:`DOMAIN_RANGE` for one run (or one test session) that no other
+    process of the project on this machine holds: tried in random order, claimed with an
+    exclusive ``flock`` on :func:`lock_path` that lasts as long as this process (its children
+    inherit the id through the environment). Falls back to a random id if all are taken."""
     lo, hi = DOMAIN_RANGE
-    return lo + secrets.randbelow(hi - lo + 1)
+    ids = list(range(lo, hi + 1))
+    secrets.SystemRandom().shuffle(ids)
+    for domain_id in ids:
+        try:
+            fd = os.open(lock_path(domain_id), os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        os.write(fd, f'{os.getpid()}\n'.encode())
+        _claimed[domain_id] = fd
+        return domain_id
+    return ids[0]
 
 
 def apply_ros_env(env: MutableMapping[str, str] | None = None, *, network: bool = False,
