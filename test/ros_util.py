@@ -45,8 +45,8 @@ class Probe:
         self.executor.add_node(self.node)
         self.msgs: dict[str, list] = defaultdict(list)
 
-    def listen(self, msg_type, topic: str, latched: bool = False) -> None:
-        qos = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+    def listen(self, msg_type, topic: str, latched: bool = False, depth: int = 100) -> None:
+        qos = QoSProfile(depth=depth, durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
                          else DurabilityPolicy.VOLATILE)
         self.node.create_subscription(msg_type, topic,
                                       lambda m, t=topic: self.msgs[t].append(m), qos)

@@ -264,3 +264,25 @@ def test_tick_barrier_waits_for_the_decisions_due_then():
     barrier.on_proposal(p('view', 10.5))
     [(t, ps)] = barrier.ready(0.61)
     assert t == 10.5 and len(ps) == 2 and barrier.missing == set()
+
+
+def test_copies_of_a_proposal_count_once():
+    """A module sends its last proposal again while the clock stands at its instant (it may
+    have been lost while the graph connected): the barrier and the learner take it once."""
+    from clis_modules.core.lockstep import TickBarrier
+    barrier = TickBarrier(['innate'], [0.25], timeout=0.5)
+
+    def p(t):
+        return Proposal('innate', t, np.zeros(1), np.zeros(2), np.zeros(2), 0.1, 0.0, 0)
+    barrier.begin_episode(0.0)
+    barrier.on_tick(0.0, now=0.0)
+    assert barrier.on_proposal(p(0.0)) and not barrier.on_proposal(p(0.0))
+    [(t, ps)] = barrier.ready(0.01)
+    assert t == 0.0 and len(ps) == 1
+    assert not barrier.on_proposal(p(0.0))                    # a late copy after the answer
+    barrier.on_tick(0.25, now=0.02)
+    assert barrier.waiting_for == ['innate']                  # the copy is not the 0.25 one
+    buf = StreamBuffer(['innate'])
+    assert buf.add_decision('innate', 0.0, [1.0]) and buf.add_decision('innate', 0.25, [2.0])
+    assert not buf.add_decision('innate', 0.0, [1.0])
+    assert buf.cut(0.0, 1.0, reached=False).decisions('innate')[0].tolist() == [0.0, 0.25]

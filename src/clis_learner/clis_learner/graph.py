@@ -284,9 +284,19 @@ class Monitor:
         self.rows.append(values)
 
     def up(self, nodes: list[str]) -> list[str]:
-        """Which of ``nodes`` are not discovered yet."""
-        seen = set(self.node.get_node_names())
-        return [n for n in nodes if n not in seen]
+        """Which of ``nodes`` are not up yet: not discovered, or without their ``episode``
+        subscription (created last but one by each graph node, after its other inputs)."""
+        seen = dict(self.node.get_node_names_and_namespaces())
+        missing = []
+        for n in nodes:
+            try:
+                topics = ([t for t, _ in self.node.get_subscriber_names_and_types_by_node(
+                    n, seen[n])] if n in seen else [])
+            except Exception:                           # noqa: BLE001 vanished meanwhile
+                topics = []
+            if not any(t.rsplit('/', 1)[-1] == 'episode' for t in topics):
+                missing.append(n)
+        return missing
 
     def spin(self, timeout: float) -> None:
         import rclpy

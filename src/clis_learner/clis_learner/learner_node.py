@@ -114,7 +114,8 @@ class LearnerNode(GraphNode):
     def _on_proposal(self, msg: JointState) -> None:
         try:
             p = mconv.proposal_from_msg(msg)
-            self.buffer.add_decision(p.module, p.t, p.b)
+            if not self.buffer.add_decision(p.module, p.t, p.b):
+                return                                      # a copy
         except (ValueError, KeyError) as exc:
             self.get_logger().error(f'ignored proposal: {exc}')
             return

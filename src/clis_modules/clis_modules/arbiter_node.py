@@ -62,6 +62,8 @@ class ArbiterNodeParams:
                            'are in')
     lockstep_timeout: float = param(0.001, 60.0, doc='wall seconds an instant waits for a '
                                     'due decision')
+    resend_period: float = param(0.01, 60.0, doc='lockstep: wall seconds the clock stands at '
+                                 'an answered instant before the command is sent again')
 
 
 def module_timing(common: CommonParams, periods: list[tuple[str, float]]
@@ -94,6 +96,7 @@ class ArbiterNode(GraphNode):
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.barrier = None
         self.u_exec = np.zeros(2)                    # the command in force
+        self.sent = None                             # (cmd_vel, stamp, wall time) sent last
         if self.cfg.lockstep and self.sim_time:
             self.barrier = TickBarrier(names, taus, self.cfg.lockstep_timeout)
             self.on_clock_advance(self._on_tick)
@@ -144,8 +147,15 @@ class ArbiterNode(GraphNode):
         self._advance()
 
     def _advance(self) -> None:
-        """Answer the instants whose due decisions are in (lockstep)."""
-        for t, ps in self.barrier.ready(time.monotonic()):
+        """Answer the instants whose due decisions are in (lockstep); send the last answer
+        again while the clock stands at its instant (the simulator did not get it)."""
+        now = time.monotonic()
+        if self.sent is not None and self.barrier.running \
+                and now - self.sent[2] >= self.cfg.resend_period \
+                and self.now_s() <= self.sent[1] + 1e-6:
+            self.pub_cmd.publish(self.sent[0])
+            self.sent = (self.sent[0], self.sent[1], now)
+        for t, ps in self.barrier.ready(now):
             cmd = self.selector.on_proposals(ps, t) if ps else None
             if cmd is None:
                 cmd = self.selector.check(t)
@@ -156,9 +166,10 @@ class ArbiterNode(GraphNode):
 
     def _send(self, u_exec: np.ndarray, t: float) -> None:
         self.u_exec = u_exec
-        self.pub_cmd.publish(rconv.cmd_from_wheels(u_exec, self.wheel_base, t,
-                                                   self.cfg.base_frame,
-                                                   self.cfg.cmd_vel_stamped))
+        msg = rconv.cmd_from_wheels(u_exec, self.wheel_base, t, self.cfg.base_frame,
+                                    self.cfg.cmd_vel_stamped)
+        self.pub_cmd.publish(msg)
+        self.sent = (msg, t, time.monotonic())
 
     def _publish(self, cmd: Command | None) -> None:
         if cmd is None:

@@ -60,6 +60,8 @@ class ModuleNodeParams:
     params_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for announced '
                                   'parameters at an episode start')
     frame: str = param(doc="frame of the place module's belief grid")
+    resend_period: float = param(0.01, 60.0, doc='wall seconds the clock stands at the '
+                                 'instant of the last proposal before it is sent again')
 
 
 class ModuleNode(GraphNode):
@@ -84,6 +86,7 @@ class ModuleNode(GraphNode):
         self.expect_version = 0                 # parameter version announced by the start
         self.wait_until = 0.0                   # wall deadline of that wait
         self.pending = None                     # parameters received during an episode
+        self.sent = None                        # (proposal, wall time) published last
         self.camera: deque = deque(maxlen=20)   # (stamp, dest bearing, landmark bearings)
         self.ir: deque = deque(maxlen=20)       # (stamp, d_o)
         self.wheels: deque = deque(maxlen=2000)  # (stamp, v_left, v_right)
@@ -167,6 +170,14 @@ class ModuleNode(GraphNode):
                 self._try_decide()
 
     def _on_wall(self) -> None:
+        now = time.monotonic()
+        # under sim time the clock stands at the instant of the last proposal until the
+        # arbiter has it: send it again if that takes long (lost while the graph connected)
+        if self.sim_time and self.sent is not None and self.t0 is not None \
+                and now - self.sent[1] >= self.cfg.resend_period \
+                and self.now_s() <= self.last_t + _TOL:
+            self.pub.publish(self.sent[0])
+            self.sent = (self.sent[0], now)
         if self.due and self.decider.version < self.expect_version \
                 and time.monotonic() >= self.wait_until:
             self.get_logger().warning(
@@ -231,7 +242,9 @@ class ModuleNode(GraphNode):
                 self.wheels_t = tw
         p = self.decider.decide(Percept(t, dest, d_o, lm))
         self.due, self.last_t = False, t
-        self.pub.publish(conv.proposal_msg(p, self.now_s()))
+        msg = conv.proposal_msg(p, self.now_s())
+        self.pub.publish(msg)
+        self.sent = (msg, time.monotonic())
         if self.pub_belief is not None:
             loc = self.decider.module.localizer
             self.pub_belief.publish(conv.belief_msg(

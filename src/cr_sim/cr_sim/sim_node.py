@@ -78,6 +78,7 @@ class SimNode(Node):
         self.u_time = -np.inf
         self.episode = 0
         self._time_offset = 0.0
+        self.t_start = 0.0                  # sim time of the running episode's start
         self.episode_return = 0.0
         self.next_marker_t = 0.0
         self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout,
@@ -122,10 +123,13 @@ class SimNode(Node):
         return self.params.episode.dt
 
     def _on_cmd(self, msg) -> None:
+        stamp = conv.cmd_stamp(msg)
+        if self.gate.lockstep and stamp and stamp < self.t_start - 1e-6:
+            return                  # in lockstep: a command decided in an earlier episode
         # Clamped in the core (NaN/inf -> 0, limit): a bad command never reaches the wheels.
         self.u = conv.wheels_from_cmd(msg, self.wheel_base)
         self.u_time = self.sim.t
-        self.gate.on_command(conv.cmd_stamp(msg))
+        self.gate.on_command(stamp)
 
     def _on_progress(self, msg) -> None:
         _, _, values = conv.event_from_msg(msg)
@@ -150,6 +154,7 @@ class SimNode(Node):
         start, heading = draw_start(self.cfg.start, self.arena, self.start_rng)
         self.sim.reset(start=start, heading=heading)
         self.episode += 1
+        self.t_start = self.sim_time
         self.episode_return = 0.0
         self.u[:] = 0.0
         self.u_time = -np.inf

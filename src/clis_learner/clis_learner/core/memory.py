@@ -180,10 +180,15 @@ class StreamBuffer:
         self._act: list[tuple[float, np.ndarray, str]] = []
         self._rew: list[tuple[float, float]] = []
 
-    def add_decision(self, module: str, t: float, b: ArrayLike) -> None:
+    def add_decision(self, module: str, t: float, b: ArrayLike) -> bool:
         """Module ``module`` decided at ``t`` [s] with features ``b``, shape (n,) (not copied:
-        do not modify it afterwards)."""
-        _insert(self._dec[module], (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
+        do not modify it afterwards). False (ignored): a decision at ``t`` is there already (a
+        module sends its last proposal again while the clock stands still)."""
+        items = self._dec[module]
+        if any(abs(tk - t) <= TIME_TOL for tk, _ in items[-8:]):
+            return False
+        _insert(items, (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
+        return True
 
     def add_action(self, t: float, u: ArrayLike, behaviour: str) -> None:
         """From ``t`` [s] the robot executes ``u`` proposed by module ``behaviour``."""

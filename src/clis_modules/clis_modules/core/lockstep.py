@@ -49,6 +49,7 @@ class TickBarrier:
         self.running = False
         self.t0 = -math.inf
         self.missing: set[int] = set()
+        self.last = np.full(len(self.names), -math.inf)   # newest proposal stamp per module
         self.inbox: list[Proposal] = []
         self.open: list[tuple[float, float]] = []         # (instant, wall deadline)
 
@@ -66,10 +67,16 @@ class TickBarrier:
         if not self.open or t > self.open[-1][0] + _TOL:
             self.open.append((float(t), now + self.timeout))
 
-    def on_proposal(self, p: Proposal) -> None:
+    def on_proposal(self, p: Proposal) -> bool:
+        """Take a proposal; False (ignored) for a copy or an older one of the same module
+        (modules send their last proposal again while the clock stands still)."""
         i = self.index[p.module]
+        if p.t <= self.last[i] + _TOL:
+            return False
+        self.last[i] = p.t
         self.missing.discard(i)
         self.inbox.append(p)
+        return True
 
     def due(self, t: float) -> np.ndarray:
         """Modules whose decision is due at ``t`` and not missing, shape (N,), bool."""
