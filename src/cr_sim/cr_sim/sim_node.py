@@ -241,12 +241,16 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     period = node.dt / node.cfg.speed_factor if node.cfg.speed_factor > 0 else 0.0
     next_wall = time.monotonic()
     while rclpy.ok():
-        if node.holding:                  # the clock stands still until the learner reports
+        if node.holding:                  # the clock stands still (learner gate, lockstep)
             executor.spin_once(timeout_sec=0.005)
             node.check_hold()
             next_wall = time.monotonic()
-            continue
-        executor.spin_once(timeout_sec=0.0)
+            if node.holding or period > 0:
+                continue
+            # released by the command just taken: the next tick at once (the graph's
+            # callbacks of this instant all ran before that command)
+        else:
+            executor.spin_once(timeout_sec=0.0)
         now = time.monotonic()
         if now < next_wall:
             executor.spin_once(timeout_sec=next_wall - now)
