@@ -46,8 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list:
     """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
-    from clis_learner import experiment, graph, report
-    return [experiment.register, report.register, graph.register]
+    from clis_learner import compare, experiment, graph, report
+    return [experiment.register, report.register, graph.register, compare.register]
 
 
 def main(argv: list[str] | None = None) -> int:
