@@ -286,3 +286,22 @@ def test_copies_of_a_proposal_count_once():
     assert buf.add_decision('innate', 0.0, [1.0]) and buf.add_decision('innate', 0.25, [2.0])
     assert not buf.add_decision('innate', 0.0, [1.0])
     assert buf.cut(0.0, 1.0, reached=False).decisions('innate')[0].tolist() == [0.0, 0.25]
+
+
+def test_tick_barrier_does_not_wait_for_a_decision_made_past_its_instant():
+    """If the clock ran past a due instant (after a timeout), the module decides on a later
+    instant's readings: the due instant is answered at once instead of timing out."""
+    from clis_modules.core.lockstep import TickBarrier
+    barrier = TickBarrier(['view'], [0.5], timeout=2.0)
+
+    def p(t):
+        return Proposal('view', t, np.zeros(1), np.zeros(2), np.zeros(2), 0.1, 0.0, 0)
+    barrier.begin_episode(0.0)
+    barrier.on_tick(0.5, now=0.0)
+    barrier.on_tick(0.55, now=0.0)
+    assert barrier.ready(0.1) == [] and barrier.waiting_for == ['view']
+    barrier.on_proposal(p(0.55))                              # decided one tick late
+    assert barrier.waiting_for == []
+    ready = barrier.ready(0.2)
+    assert [t for t, _ in ready] == [0.5, 0.55] and ready[0][1] == []
+    assert [q.t for q in ready[1][1]] == [0.55] and barrier.missing == set()

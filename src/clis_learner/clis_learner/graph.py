@@ -459,6 +459,16 @@ def summary(out: Path, block: int) -> str:
             f'{last}/{k} in the last {k}; who acted in the last {k}: {shares}')
 
 
+def lockstep_timeouts(out: Path) -> int:
+    """How often the simulator or the arbiter stopped waiting for a late node (their logs)."""
+    n = 0
+    for name, marker in (('sim', 'the clock runs free'), ('arbiter', 'did not propose')):
+        path = out / 'logs' / f'{name}.log'
+        if path.is_file():
+            n += path.read_text(errors='replace').count(marker)
+    return n
+
+
 def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
                    tty: bool) -> int:
     import rclpy
@@ -499,6 +509,9 @@ def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
             say('clis run: interrupted, stopping the graph')
         else:
             say(f'clis run: {view.summary()}')
+        if n := lockstep_timeouts(out):
+            say(f'clis run: warning: {n} lockstep timeouts (a node was late; the run then '
+                f'differs from the headless runner): see {out}/logs')
     except ExternalShutdownException:
         code = EXIT_INTERRUPTED
     finally:

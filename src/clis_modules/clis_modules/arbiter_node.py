@@ -155,7 +155,13 @@ class ArbiterNode(GraphNode):
                 and self.now_s() <= self.sent[1] + 1e-6:
             self.pub_cmd.publish(self.sent[0])
             self.sent = (self.sent[0], self.sent[1], now)
-        for t, ps in self.barrier.ready(now):
+        missing = set(self.barrier.missing)
+        answered = self.barrier.ready(now)
+        if late := self.barrier.missing - missing:
+            self.get_logger().warning(
+                f'lockstep: {", ".join(self.names[i] for i in sorted(late))} did not propose '
+                f'within {self.cfg.lockstep_timeout} s: answering without it until it does')
+        for t, ps in answered:
             cmd = self.selector.on_proposals(ps, t) if ps else None
             if cmd is None:
                 cmd = self.selector.check(t)

@@ -156,10 +156,15 @@ class ModuleNode(GraphNode):
         if self.t0 is not None:
             self.due = True
             # under sim time the simulator publishes the readings of an instant before the
-            # clock reaches it: decide on those of this very instant (in real time, on the
+            # clock reaches it: decide on those of the grid instant t_0 + l tau_i this timer
+            # fired for, or the first after it if the clock ran past it (in real time, on the
             # newest readings)
-            self.due_t = self.now_s() if self.sim_time else -math.inf
+            self.due_t = self._grid(self.now_s()) if self.sim_time else -math.inf
             self._try_decide()
+
+    def _grid(self, t: float) -> float:
+        """The last decision instant ``t_0 + l tau_i`` at or before ``t``."""
+        return self.t0 + math.floor((t - self.t0) / self.period + 1e-6) * self.period
 
     def _on_clock(self, t: float) -> None:
         if self.align is not None and t >= self.align - _TOL:
@@ -215,16 +220,20 @@ class ModuleNode(GraphNode):
         self.pending = None
 
     def _readings(self) -> tuple[float, float, np.ndarray, float] | None:
-        """The newest instant of this episode with both a camera and an IR reading, newer
-        than the last decision: ``(t, dest bearing, landmark bearings, d_o)``."""
+        """An instant of this episode with both a camera and an IR reading, newer than the
+        last decision: ``(t, dest bearing, landmark bearings, d_o)``; under sim time the first
+        at or after the due instant, in real time the newest."""
         ir = {round(t, 6): d_o for t, d_o in self.ir}
+        found = None
         for t, dest, lm in reversed(self.camera):
             if t < self.t0 - _TOL or t <= self.last_t + _TOL or t < self.due_t - _TOL:
-                return None
+                break
             d_o = ir.get(round(t, 6))
             if d_o is not None:
-                return t, dest, lm, d_o
-        return None
+                found = (t, dest, lm, d_o)
+                if not self.sim_time:
+                    break
+        return found
 
     def _try_decide(self) -> None:
         if not self.due or self.t0 is None or self.decider.version < self.expect_version:

@@ -94,8 +94,10 @@ class TickBarrier:
         while self.running and self.open:
             t, deadline = self.open[0]
             due = self.due(t)
-            have = {self.index[p.module] for p in self.inbox if abs(p.t - t) <= _TOL}
-            waiting = [i for i in np.flatnonzero(due) if i not in have]
+            # a proposal at t, or a later one (the module decided past t: no use waiting)
+            have = {self.index[p.module] for p in self.inbox if p.t >= t - _TOL}
+            waiting = [i for i in np.flatnonzero(due) if i not in have
+                       and self.last[i] < t - _TOL]
             if waiting and now < deadline:
                 break
             self.missing.update(int(i) for i in waiting)
@@ -111,5 +113,6 @@ class TickBarrier:
         if not self.open:
             return []
         t = self.open[0][0]
-        have = {p.module for p in self.inbox if abs(p.t - t) <= _TOL}
-        return [n for n, d in zip(self.names, self.due(t)) if d and n not in have]
+        have = {p.module for p in self.inbox if p.t >= t - _TOL}
+        return [n for i, (n, d) in enumerate(zip(self.names, self.due(t)))
+                if d and n not in have and self.last[i] < t - _TOL]
