@@ -25,6 +25,7 @@ learner's densities are of). Layouts in :mod:`clis_modules.conversions`.
 
 from __future__ import annotations
 
+import math
 import time
 
 from cr_sim.core.params import dataclass, param
@@ -169,11 +170,13 @@ class ArbiterNode(GraphNode):
             self.pub_cmd.publish(self.sent[0])
             self.sent = (self.sent[0], self.sent[1], now)
         missing = set(self.barrier.missing)
+        oldest = self.barrier.open[0][0] if self.barrier.open else math.nan
         answered = self.barrier.ready(now)
         if late := self.barrier.missing - missing:
             self.get_logger().warning(
                 f'lockstep: {", ".join(self.names[i] for i in sorted(late))} did not propose '
-                f'within {self.cfg.lockstep_timeout} s: answering without it until it does')
+                f'for t = {oldest:.3f} s within {self.cfg.lockstep_timeout} s (episode start '
+                f'{self.barrier.t0:.3f}): answering without it until it does')
         for t, ps in answered:
             cmd = self.selector.on_proposals(ps, t) if ps else None
             if cmd is None:
