@@ -137,6 +137,7 @@ class ModuleNode(GraphNode):
         t, v = rconv.wheels_from_msg(msg)
         if v.size == 2:
             self.wheels.append((t, float(v[0]), float(v[1])))
+            self._try_decide()
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
         t, event, values = rconv.episode_from_msg(msg)
@@ -293,6 +294,11 @@ class ModuleNode(GraphNode):
         if found is None:
             return
         t, dest, lm, d_o = found
+        # the place module localizes on the motion up to t: under sim time wait for the wheel
+        # reading of t too (it travels on its own topic and may come after the camera's)
+        if self.decider.localizes and self.sim_time and self.wheels_t < t - _TOL \
+                and not (self.wheels and self.wheels[-1][0] >= t - _TOL):
+            return
         # odometry: the wheel velocities of every step that ended after the last reading
         # used, up to this one (each held since the previous reading)
         while self.wheels and self.wheels[0][0] <= t + _TOL:
