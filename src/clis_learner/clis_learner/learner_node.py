@@ -5,8 +5,10 @@ Subscribes to the streams the paper's learning thread reads: every module's prop
 (``arbiter/action``: who acted and its proposal), the arbiter's draws (``arbiter/selection``),
 the rewards (``reward``, stamped at the end of the step that earned them) and the ``episode``
 events. The records go into a :class:`~clis_learner.core.memory.StreamBuffer` in whatever
-order they arrive; when an episode ends (and its last reward has arrived, or
-``learner_node.close_timeout`` s of wall time passed) the buffer is cut into that episode's
+order they arrive; when an episode ends (and all of its records have arrived: its last reward,
+the arbiter's stop at its end, under sim time each module's last decision ``t_0 + l tau_i``
+before the end; or ``learner_node.close_timeout`` s of wall time passed) the buffer is cut
+into that episode's
 memory and the same :class:`~clis_learner.core.learner.Learner` as the headless runner resamples
 it to each module's grid and applies (7)-(9), (11).
 
@@ -59,7 +61,8 @@ class LearnerNodeParams:
 
     out_dir: str = param(doc="folder for episodes.csv and checkpoint.npz; '' = none")
     resume: str = param(doc="checkpoint to start from; '' = the initial parameters")
-    close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the last reward')
+    close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the records of an '
+                                  'ended episode')
     close_grace: float = param(0.0, 10.0, doc='wall seconds to wait for records in flight')
 
 
@@ -90,6 +93,7 @@ class LearnerNode(GraphNode):
         self.closing: dict | None = None        # the ended episode waiting for its records
         self.first_reward_t = math.inf          # stamp of the first reward this process got
         self.reward_t = -math.inf               # newest reward stamp (the watermark)
+        self.stop_t = -math.inf                 # newest stop of the arbiter
         self.draws: deque = deque(maxlen=10000)  # (t, Pr(i|x), V_i) of the arbiter's draws
 
         self.pub_params = {name: self.create_publisher(JointState, f'{name}/params',
@@ -127,7 +131,8 @@ class LearnerNode(GraphNode):
 
     def _on_action(self, msg: JointState) -> None:
         t, u, acting = mconv.action_from_msg(msg)
-        if not acting:                                      # '' = a stop: nobody acts
+        if not acting:        # '' = a stop: nobody acts (the one at an episode's end comes
+            self.stop_t = max(self.stop_t, t)     # after all of that episode's actions)
             return
         if acting not in self.names:
             self.get_logger().error(
@@ -180,12 +185,29 @@ class LearnerNode(GraphNode):
         if c is None:
             return
         now = time.monotonic()
-        if (self.reward_t >= c['t_end'] - TIME_TOL and now >= c['grace']) \
-                or now >= c['deadline']:
-            if now >= c['deadline'] and self.reward_t < c['t_end'] - TIME_TOL:
-                self.get_logger().warning(f'episode {self.episode["index"]}: its last reward '
-                                          f'did not arrive within {self.cfg.close_timeout} s')
+        missing = self._missing_records(c['t_end'])
+        if (not missing and now >= c['grace']) or now >= c['deadline']:
+            if missing:
+                self.get_logger().warning(
+                    f'episode {self.episode["index"]}: {", ".join(missing)} did not arrive '
+                    f'within {self.cfg.close_timeout} s: learning from what did')
             self._close()
+
+    def _missing_records(self, t_end: float) -> list[str]:
+        """What of the episode ending at ``t_end`` has not arrived yet: its last reward, the
+        arbiter's stop at its end (sent after all of its actions), and each module's last
+        decision ``t_0 + l tau_i < t_end`` (they travel on separate topics, and a run without
+        lockstep pauses only at the decision instants)."""
+        t0 = self.episode['t0']
+        missing = [] if self.reward_t >= t_end - TIME_TOL else ['the last reward']
+        if self.stop_t < t_end - TIME_TOL:
+            missing.append("the arbiter's stop")
+        for m in self.modules if self.sim_time else ():      # real time: off the grid
+            # decisions at t_0 + l tau_i
+            last = t0 + math.floor((t_end - t0 - TIME_TOL) / m.period + 1e-9) * m.period
+            if self.buffer.last_decision(m.name) < last - TIME_TOL:
+                missing.append(f'the decision of {m.name} at {last:.3f} s')
+        return missing
 
     # ------------------------------------------------------------------ learning
 
