@@ -7,7 +7,8 @@ the rewards (``reward``, stamped at the end of the step that earned them) and th
 events. The records go into a :class:`~clis_learner.core.memory.StreamBuffer` in whatever
 order they arrive; when an episode ends (and all of its records have arrived: its last reward,
 the arbiter's stop at its end, under sim time each module's last decision ``t_0 + l tau_i``
-before the end; or ``learner_node.close_timeout`` s of wall time passed) the buffer is cut
+before the end; or ``learner_node.close_timeout`` s of wall time passed without a new record)
+the buffer is cut
 into that episode's
 memory and the same :class:`~clis_learner.core.learner.Learner` as the headless runner resamples
 it to each module's grid and applies (7)-(9), (11).
@@ -61,8 +62,8 @@ class LearnerNodeParams:
 
     out_dir: str = param(doc="folder for episodes.csv and checkpoint.npz; '' = none")
     resume: str = param(doc="checkpoint to start from; '' = the initial parameters")
-    close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the records of an '
-                                  'ended episode')
+    close_timeout: float = param(0.0, 600.0, doc='wall seconds without a new record before an '
+                                  'ended episode is learned from what arrived')
     close_grace: float = param(0.0, 10.0, doc='wall seconds to wait for records in flight')
 
 
@@ -94,6 +95,7 @@ class LearnerNode(GraphNode):
         self.first_reward_t = math.inf          # stamp of the first reward this process got
         self.reward_t = -math.inf               # newest reward stamp (the watermark)
         self.stop_t = -math.inf                 # newest stop of the arbiter
+        self.record_wall = -math.inf            # wall time the last record arrived
         self.draws: deque = deque(maxlen=10000)  # (t, Pr(i|x), V_i) of the arbiter's draws
 
         self.pub_params = {name: self.create_publisher(JointState, f'{name}/params',
@@ -118,6 +120,7 @@ class LearnerNode(GraphNode):
     # ------------------------------------------------------------------ streams
 
     def _on_proposal(self, msg: JointState) -> None:
+        self.record_wall = time.monotonic()
         try:
             p = mconv.proposal_from_msg(msg)
             if not self.buffer.add_decision(p.module, p.t, p.b):
@@ -130,6 +133,7 @@ class LearnerNode(GraphNode):
             self.episode['stale'] += 1
 
     def _on_action(self, msg: JointState) -> None:
+        self.record_wall = time.monotonic()
         t, u, acting = mconv.action_from_msg(msg)
         if not acting:        # '' = a stop: nobody acts (the one at an episode's end comes
             self.stop_t = max(self.stop_t, t)     # after all of that episode's actions)
@@ -157,6 +161,7 @@ class LearnerNode(GraphNode):
         return first
 
     def _on_reward(self, msg: Vector3Stamped) -> None:
+        self.record_wall = time.monotonic()
         t, r, _ = rconv.reward_from_msg(msg)
         self.first_reward_t = min(self.first_reward_t, t)
         self.reward_t = max(self.reward_t, t)
@@ -186,7 +191,10 @@ class LearnerNode(GraphNode):
             return
         now = time.monotonic()
         missing = self._missing_records(c['t_end'])
-        if (not missing and now >= c['grace']) or now >= c['deadline']:
+        # the timeout counts from the last record that arrived: a learner working through a
+        # backlog (a loaded machine) does not give up while records still come in
+        if (not missing and now >= c['grace']) \
+                or now >= max(c['deadline'], self.record_wall + self.cfg.close_timeout):
             if missing:
                 self.get_logger().warning(
                     f'episode {self.episode["index"]}: {", ".join(missing)} did not arrive '
