@@ -34,7 +34,7 @@ from cr_sim.core.arena import load_arena
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.robot import clamp_wheels, integrate_arc, wheels_to_twist
-from cr_sim.core.sim import load_sim_params
+from cr_sim.core.sim import IGNORED_SECTIONS, SimParams
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 import numpy as np
 import rclpy
@@ -86,12 +86,16 @@ class BridgeNode(Node):
 
     def __init__(self) -> None:
         super().__init__('bridge')
+        # the robot's own keys (config/bridge.yaml) and the simulator's robot, sensors,
+        # episode and wander sections (config/sim.yaml): the same dotted keys as the sim node
         defaults = ros_parameters(config_dir() / 'bridge.yaml', 'bridge')
+        sim = ros_parameters(config_dir() / 'sim.yaml', 'sim')
+        defaults.update({k: v for k, v in sim.items() if k not in IGNORED_SECTIONS})
         values = declare_from_config(self, defaults)
         try:
-            self.cfg = build(BridgeNodeParams, values['node'], where='bridge.node')
-            contact = build(ContactParams, values['contact'], where='bridge.contact')
-            self.params = load_sim_params()
+            self.cfg = build(BridgeNodeParams, values.pop('node'), where='bridge.node')
+            contact = build(ContactParams, values.pop('contact'), where='bridge.contact')
+            self.params = build(SimParams, values, where='sim')
             self.arena = load_arena(self.cfg.arena_file or None)
         except ConfigError as exc:
             self.get_logger().fatal(str(exc))
@@ -367,7 +371,7 @@ class BridgeNode(Node):
         self.pub_wheels.publish(conv.wheels_msg(r.wheels, t, frame))
         self.pub_odom.publish(conv.odom_msg(self.pose, r.wheels, self.wheel_base, t,
                                             self.cfg.map_frame, frame))
-        if t >= self.next_marker_t:
+        if t >= self.next_marker_t - 1e-6:
             self.next_marker_t = t + self.cfg.markers_period
             self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
                 self.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
