@@ -44,6 +44,9 @@ def test_watchdog_stops_the_wheels_within_300_ms_of_the_last_command(probe):
     try:
         assert p.spin_until(lambda: len(p.msgs['wheels']) > 5, 40), robot.close()
         latencies = []
+        arrivals = []                                   # (wall time of arrival, reading)
+        p.node.create_subscription(JointState, 'wheels',
+                                   lambda m: arrivals.append((time.monotonic(), m)), 10)
         for _ in range(3):
             for _ in range(20):                               # 1 s of commands at 20 Hz
                 p.pub.publish(forward(4.0))
@@ -52,9 +55,7 @@ def test_watchdog_stops_the_wheels_within_300_ms_of_the_last_command(probe):
             p.pub.publish(forward(4.0))
             t_last = time.monotonic()
             n = len(p.msgs['wheels'])
-            arrivals = []
-            p.node.create_subscription(JointState, 'wheels',
-                                       lambda m: arrivals.append((time.monotonic(), m)), 10)
+            arrivals.clear()
             assert p.spin_until(lambda: any(max(map(abs, m.velocity)) == 0.0
                                             for _, m in arrivals), 2.0)
             t_zero = next(t for t, m in arrivals if max(map(abs, m.velocity)) == 0.0)
