@@ -70,15 +70,15 @@ class PtyEnd:
 
 
 def make_device(seed: int, start: str, arena_file: str = '', faults: Faults | None = None,
-                true_pose: bool = True) -> Device:
+                true_pose: bool = True, speed: float = 1.0) -> Device:
     """A device in ``arena_file`` standing at ``start`` (a start name or 'random')."""
     from cr_sim.core.arena import load_arena
     from cr_sim.core.sim import Simulator, load_sim_params
     params = load_sim_params(overrides={'episode.time_limit': 3600.0})
     sim = Simulator(load_arena(arena_file or None), params, np.random.default_rng([seed, 10]))
     sim.reset(start=start)
-    return Device(sim, np.random.default_rng([seed, 11]), faults or Faults(),
-                  true_pose=true_pose)
+    return Device(sim, np.random.default_rng([seed, 11]), faults, true_pose=true_pose,
+                  speed=speed)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         device = make_device(args.seed, args.start, args.arena,
                              Faults(args.drop, args.corrupt, args.garbage),
-                             true_pose=not args.no_true_pose)
+                             true_pose=not args.no_true_pose, speed=args.speed)
     except (ValueError, OSError) as exc:
         print(f'emulator: {exc}', file=sys.stderr)
         return 2

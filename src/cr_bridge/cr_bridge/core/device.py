@@ -52,13 +52,17 @@ class Device:
         Also send ``TRUE_POSE`` frames.
     heartbeat_every : int
         A ``HEARTBEAT`` every this many ticks.
+    speed : float
+        Device time per wall second (the emulator's ``--speed``): a command's timeout is wall
+        time, as the host's sending is, so it holds ``speed`` times as long in device time.
     """
 
-    def __init__(self, sim: Simulator, rng: np.random.Generator, faults: Faults = Faults(),
-                 true_pose: bool = True, heartbeat_every: int = 10) -> None:
+    def __init__(self, sim: Simulator, rng: np.random.Generator, faults: Faults | None = None,
+                 true_pose: bool = True, heartbeat_every: int = 10, speed: float = 1.0) -> None:
         self.sim = sim
         self.rng = rng
-        self.faults = faults
+        self.faults = faults or Faults()
+        self.speed = speed
         self.true_pose = true_pose
         self.heartbeat_every = heartbeat_every
         self.parser = proto.FrameParser(accept=frozenset({proto.MsgType.WHEELS,
@@ -90,7 +94,7 @@ class Device:
                 if np.any(np.abs(u) > self.v_max + 1e-9):
                     self._error(proto.ErrorCode.OUT_OF_RANGE, frame.seq)
                 self.u = np.clip(u, -self.v_max, self.v_max)
-                self.u_deadline = self.t + cmd.timeout
+                self.u_deadline = self.t + cmd.timeout * self.speed
                 self.stopped_by_watchdog = False
                 self.commands.append((self.t, float(self.u[0]), float(self.u[1])))
         if self.parser.stats.malformed > before:
