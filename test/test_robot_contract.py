@@ -226,3 +226,20 @@ def test_a_collision_costs_once_while_pressed(robot):
     assert hits == [pytest.approx(-0.1)], hits
     touching = [m for m in p.msgs['wheels'][-40:]]
     assert all(abs(sum(m.velocity)) < 0.8 for m in touching[-10:]), 'pressed: it does not move'
+
+
+def test_qos_and_the_reset_service(robot):
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+    _, p = robot
+    latched = {'/episode', '/arena'}
+    for topic in ['/clock', '/ir', '/camera', '/wheels', '/reward', '/odom', '/markers',
+                  *latched]:
+        infos = p.node.get_publishers_info_by_topic(topic)
+        assert len(infos) == 1, topic
+        qos = infos[0].qos_profile
+        assert qos.reliability == ReliabilityPolicy.RELIABLE, topic
+        assert qos.durability == (DurabilityPolicy.TRANSIENT_LOCAL if topic in latched
+                                  else DurabilityPolicy.VOLATILE), topic
+    types = dict(p.node.get_topic_names_and_types())
+    assert types['/cmd_vel'] == ['geometry_msgs/msg/TwistStamped']
+    assert ('/reset', ['std_srvs/srv/Trigger']) in p.node.get_service_names_and_types()

@@ -218,7 +218,7 @@ class SimNode(Node):
             (self.pub_odom, conv.odom_msg(self.sim.pose, obs.wheels, self.wheel_base, t,
                                           self.cfg.map_frame, frame)),
             (self.pub_clock, conv.clock_msg(t))]
-        if t >= self.next_marker_t:
+        if t >= self.next_marker_t - 1e-6:   # sim_time sums floats: 0.1 may be 0.0999999
             self.next_marker_t = t + self.cfg.markers_period
             self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
                 self.sim.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
