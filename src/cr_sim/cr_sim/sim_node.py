@@ -244,7 +244,11 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
         if node.holding:                  # the clock stands still (learner gate, lockstep)
             executor.spin_once(timeout_sec=0.005)
             node.check_hold()
-            next_wall = time.monotonic()
+            if period == 0:
+                next_wall = time.monotonic()
+            # paced (speed > 0): the schedule goes on across the hold, so that a clock held at
+            # every instant (lockstep) is still capped at speed x wall time; a long hold (the
+            # learner) falls more than 1 s behind and restarts the schedule below
             if node.holding or period > 0:
                 continue
             # released by the command just taken: the next tick at once (the graph's
