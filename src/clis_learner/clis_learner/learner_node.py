@@ -96,10 +96,12 @@ class LearnerNode(GraphNode):
                                                        PARAMS_QOS) for name in self.names}
         self.pub_progress = self.create_publisher(DiagnosticArray, '~/progress', PROGRESS_QOS)
         for name in self.names:
-            self.create_subscription(JointState, f'{name}/proposal', self._on_proposal, 50)
-        self.create_subscription(JointState, 'arbiter/action', self._on_action, 50)
-        self.create_subscription(JointState, 'arbiter/selection', self._on_selection, 50)
-        self.create_subscription(Vector3Stamped, 'reward', self._on_reward, 100)
+            self.create_subscription(JointState, f'{name}/proposal', self._on_proposal,
+                                     rconv.STREAM_DEPTH)
+        self.create_subscription(JointState, 'arbiter/action', self._on_action, rconv.STREAM_DEPTH)
+        self.create_subscription(JointState, 'arbiter/selection', self._on_selection,
+                                 rconv.STREAM_DEPTH)
+        self.create_subscription(Vector3Stamped, 'reward', self._on_reward, rconv.STREAM_DEPTH)
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.create_timer(0.005, self._on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._publish_params(0.0)
@@ -167,6 +169,7 @@ class LearnerNode(GraphNode):
             if self.episode is not None and self.episode['index'] == index:
                 now = time.monotonic()
                 self.closing = {'t_end': t, 'reached': event == 'reached', 'event': event,
+                                'return': float(values.get('episode_return', 'nan')),
                                 'deadline': now + self.cfg.close_timeout,
                                 'grace': now + self.cfg.close_grace}
             else:                                 # its start was not seen: nothing to learn
@@ -191,6 +194,14 @@ class LearnerNode(GraphNode):
         self.episode = self.closing = None
         mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory)
         probs, values = self._first_draw(ep['t0'], c['t_end'])
+        # every reward of the episode arrived iff they sum to the simulator's return
+        ret = float(mem.rewards()[1].sum())
+        complete = not abs(ret - c['return']) > 1e-6           # NaN: the sim did not say
+        if not complete:
+            self.get_logger().warning(
+                f'episode {ep["index"]}: the rewards received sum to {ret:.3f}, the '
+                f'simulator says {c["return"]:.3f}: reward messages were lost (learning '
+                'from it anyway; `complete` = 0 in episodes.csv)')
         # learn only from episodes recorded from their start
         learnable = self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
         diag = self.learner.learn(mem) if learnable else {}
@@ -205,7 +216,7 @@ class LearnerNode(GraphNode):
                'seed': self.graph.seed, 'phase': 'train', 'episode': ep['index'],
                **episode_row(mem, self.names, probs, values, diag, ep['start']),
                'event': c['event'], 'learned': int(learnable), 'version': self.version,
-               'stale_decisions': ep['stale'], 't_end': c['t_end']}
+               'stale_decisions': ep['stale'], 'complete': int(complete), 't_end': c['t_end']}
         if learnable and self.out is not None:
             self._append_csv(row)
         self._progress(row, c['t_end'])

@@ -93,13 +93,14 @@ class ModuleNode(GraphNode):
         self.wheels_t = -math.inf               # stamp of the last wheels reading used
         self.landmarks = [lm.name for lm in arena.landmarks]
 
-        self.pub = self.create_publisher(JointState, '~/proposal', 10)
+        self.pub = self.create_publisher(JointState, '~/proposal', self.graph.proposal_qos())
         self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
                            if self.decider.localizes else None)
         self.create_subscription(JointState, 'camera', self._on_camera, 10)
         self.create_subscription(LaserScan, 'ir', self._on_ir, 10)
         if self.decider.localizes:
-            self.create_subscription(JointState, 'wheels', self._on_wheels, 100)
+            self.create_subscription(JointState, 'wheels', self._on_wheels,
+                                     rconv.STREAM_DEPTH)
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.create_subscription(JointState, '~/params', self._on_params, PARAMS_QOS)
         self.timer = self.create_timer(self.period, self._on_timer)
@@ -207,7 +208,11 @@ class ModuleNode(GraphNode):
             if now < t0 - _TOL:                 # the clock has not reached the start yet
                 self.align = t0
             elif now > t0 + _TOL:               # (re)started during the episode: next t_0+l tau
-                self.align = t0 + math.ceil((now - t0) / self.period - 1e-9) * self.period
+                at = t0 + math.ceil((now - t0) / self.period - 1e-6) * self.period
+                if at <= now + _TOL:            # the clock stands at a decision instant
+                    self.due_t = at
+                else:
+                    self.align = at
         self._try_decide()
 
     def _apply_pending(self) -> None:
