@@ -163,8 +163,9 @@ def test_commands_drive_nan_never_moves_and_wheels_are_clamped(robot):
         return np.array([o.position.x, o.position.y])
 
     p0 = pose()
-    drive(p, -0.1, 0.0, 0.4)                 # A faces the goal: a little back, no contact
-    assert np.hypot(*(pose() - p0)) > 0.05, 'a command moves the robot'
+    # A faces the goal: a little back, no contact
+    assert drive(p, -0.1, 0.0, 3.0, until=lambda: np.hypot(*(pose() - p0)) > 0.05), \
+        'a command moves the robot'
     drive(p, 0.0, 0.0, 0.3)
     p1 = pose()
     drive(p, float('nan'), 0.0, 0.5)

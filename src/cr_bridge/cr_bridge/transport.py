@@ -23,6 +23,11 @@ from urllib.parse import urlsplit
 __all__ = ['LinkError', 'Link', 'UdpLink', 'SerialLink', 'open_link', 'parse_udp', 'is_loopback']
 
 
+#: Receive buffer of a UDP link [bytes] (SO_RCVBUFFORCE where allowed, else capped by the
+#: system's rmem_max).
+RCVBUF = 4 * 1024 * 1024
+
+
 class LinkError(OSError):
     """The link is down (cannot open, read or write)."""
 
@@ -72,6 +77,15 @@ class UdpLink(Link):
         family = socket.AF_INET6 if ':' in host else socket.AF_INET
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
         self.sock.setblocking(False)
+        # a few seconds of frames: a reader the machine starves for a moment loses none
+        for opt in (getattr(socket, 'SO_RCVBUFFORCE', None), socket.SO_RCVBUF):
+            if opt is None:
+                continue
+            try:
+                self.sock.setsockopt(socket.SOL_SOCKET, opt, RCVBUF)
+                break
+            except OSError:
+                continue
         try:
             if listen:
                 self.sock.bind((host, port))
