@@ -171,7 +171,11 @@ def test_commands_drive_nan_never_moves_and_wheels_are_clamped(robot):
     drive(p, float('nan'), 0.0, 0.5)
     assert np.allclose(p1, pose(), atol=2e-3), 'a NaN command must not move the robot'
     n = len(p.msgs['wheels'])
-    drive(p, 0.0, 40.0, 0.4)                 # spin far over the wheel limit
+
+    def spun() -> bool:
+        return any(max(abs(v) for v in m.velocity) > 1.0 for m in p.msgs['wheels'][n:])
+
+    drive(p, 0.0, 40.0, 5.0, until=spun)     # spin far over the wheel limit
     drive(p, 0.0, 0.0, 0.3)
     speeds = [max(abs(v) for v in m.velocity) for m in p.msgs['wheels'][n:]]
     assert max(speeds) <= 1.3 + 1e-3, f'wheel speed {max(speeds)} over the limit'
@@ -198,7 +202,12 @@ def test_an_idle_episode_times_out_with_one_reward_per_tick(robot):
     p.spin_for(0.2)
     rewards = _episode_rewards(p, ep)
     stamps = [t for t, _, _ in rewards]
-    assert len(rewards) == round(TIME_LIMIT / TICK), 'one reward per tick'
+    n = round(TIME_LIMIT / TICK)
+    if robot[0].kind == 'sim':
+        assert len(rewards) == n, 'one reward per tick'
+    else:   # one per frame received: a frame lost on the line (counted) has none
+        assert n * 0.98 <= len(rewards) <= n, 'one reward per tick'
+    assert len(set(stamps)) == len(stamps)
     assert stamps[0] == pytest.approx(t0 + TICK, abs=1e-6) and stamps[-1] == pytest.approx(t_end)
     assert all(r == 0.0 for _, r, _ in rewards), 'standing still collides with nothing'
 
