@@ -129,6 +129,8 @@ def test_topics_types_frames_and_rates(robot):
         assert len(stamps) > 10, topic
         assert all(b > a for a, b in zip(stamps, stamps[1:])), f'{topic}: stamps increase'
         measured = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+        if topic == 'reward':       # only within episodes (the bridge wanders between them)
+            measured = 1.0 / float(np.median(np.diff(stamps)))
         assert measured == pytest.approx(rate, rel=0.15), f'{topic}: {measured:.1f} Hz'
         if topic in ('/clock', 'ir', 'reward'):
             steps = np.diff(stamps)
