@@ -34,7 +34,8 @@ def test_lockstep_clock_is_capped_at_the_speed_factor():
         p.spin_for(3.0)
         (w0, t0), (w1, t1) = clock[n], clock[-1]
         rate = (t1 - t0) / (w1 - w0)
-        assert 1.5 < rate < 2.3, f'sim time ran at x{rate:.1f} of wall time, capped at x2'
+        # the cap (a loaded machine may not even reach x2: the lower bound only says it ran)
+        assert 0.2 < rate < 2.3, f'sim time ran at x{rate:.1f} of wall time, capped at x2'
     finally:
         out = stop(proc)
         p.close()
