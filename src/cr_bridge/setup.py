@@ -21,6 +21,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'bridge = cr_bridge.bridge_node:main',
+            'emulator = cr_bridge.emulator:main',
         ],
     },
 )

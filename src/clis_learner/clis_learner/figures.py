@@ -99,10 +99,19 @@ def fig3bc(results, path: Path) -> None:
     _save(fig, path)
 
 
+def floor_bounds(arena: dict) -> tuple[float, float, float, float]:
+    """``(xmin, ymin, xmax, ymax)`` of an arena dict (results saved before ``bounds`` have
+    the half side of the square, ``half_size``)."""
+    if 'bounds' in arena:
+        return tuple(arena['bounds'])
+    h = arena['half_size']
+    return (-h, -h, h, h)
+
+
 def draw_arena(ax, arena: dict) -> None:
     """Obstacles (short: green, tall: dark), landmarks, destination and starts."""
-    half = arena['half_size']
-    ax.add_patch(plt.Rectangle((-half, -half), 2 * half, 2 * half, fill=False, lw=2))
+    fx0, fy0, fx1, fy1 = floor_bounds(arena)
+    ax.add_patch(plt.Rectangle((fx0, fy0), fx1 - fx0, fy1 - fy0, fill=False, lw=2))
     for key, colour in (('short', 'tab:green'), ('tall', 'dimgray')):
         for x0, y0, x1, y1 in arena[key]:
             ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, color=colour, alpha=0.9))
@@ -113,8 +122,8 @@ def draw_arena(ax, arena: dict) -> None:
     for name, (x, y) in arena['starts'].items():
         ax.plot(x, y, 'x', color='blue')
         ax.annotate(name, (x, y), xytext=(3, 3), textcoords='offset points', color='blue')
-    ax.set_xlim(-half, half)
-    ax.set_ylim(-half, half)
+    ax.set_xlim(fx0, fx1)
+    ax.set_ylim(fy0, fy1)
     ax.set_aspect('equal')
 
 
@@ -131,8 +140,10 @@ def fig4(results, path: Path) -> None:
         p = np.full(maps.shape[1:], np.nan)
         free = np.isfinite(maps).all(0)
         p[free] = maps[:, free].mean(0)
-        half = runs[0].arena['half_size']
-        im = ax.imshow(p, origin='lower', extent=(-half, half, -half, half), vmin=0, vmax=1,
+        xs, ys = np.asarray(pm['x'], float), np.asarray(pm['y'], float)
+        d = xs[1] - xs[0] if len(xs) > 1 else 0.1              # the map's resolution
+        im = ax.imshow(p, origin='lower', vmin=0, vmax=1,
+                       extent=(xs[0] - d / 2, xs[-1] + d / 2, ys[0] - d / 2, ys[-1] + d / 2),
                        cmap='viridis', interpolation='nearest')
         draw_arena(ax, runs[0].arena)
         ax.set_title(f'{label}: Pr(M_pl | x)\n(mean of {len(runs)} seeds; '

@@ -74,11 +74,16 @@ class Child:
     proc: subprocess.Popen | None = None
     restarts: int = 0
     log: Path | None = None
+    #: None: a ROS node (``--ros-args`` from ``params``); else its own command-line arguments
+    #: (the device emulator, which is not a ROS node)
+    args: list[str] | None = None
 
     def argv(self, params_files: list[Path]) -> list[str]:
         """``EXE --ros-args [--params-file F]... -p KEY:=VALUE ...`` (what ``ros2 run`` runs)."""
         from ament_index_python.packages import get_package_prefix
         exe = Path(get_package_prefix(self.package)) / 'lib' / self.package / self.executable
+        if self.args is not None:
+            return [str(exe), *self.args]
         args = [str(exe), '--ros-args']
         for f in params_files:
             args += ['--params-file', str(f)]
@@ -109,7 +114,7 @@ class GraphPlan:
 
 
 def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str = '',
-               arena: str = '') -> GraphPlan:
+               arena: str = '', robot: str = 'sim', device: str = 'emulator') -> GraphPlan:
     """The nodes of ``condition``, with the parameters ``clis run`` gives each."""
     from clis_modules.core.modules import condition_periods
 
@@ -124,12 +129,33 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', dict(graph)))
     for name in modules:
         plan.children.append(Child(name, 'clis_modules', name, dict(graph)))
+    if robot == 'bridge':
+        _plan_bridge(plan, seed, speed, arena, device)
+        return plan
     plan.children.append(Child('sim', 'cr_sim', 'sim', {
         'node.seed': seed, 'node.arena_file': arena, 'node.speed_factor': float(speed),
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods]},
         restart='never'))
     return plan
+
+
+def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: str) -> None:
+    """The real robot's bridge as the robot interface (cr_bridge), and with ``device ==
+    'emulator'`` the device emulator on a free loopback UDP port, started just before it.
+    The robot's clock does not wait (no lockstep): the graph runs at the device's speed."""
+    if device == 'emulator':
+        import socket
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(('127.0.0.1', 0))
+            device = f'udp://127.0.0.1:{s.getsockname()[1]}'
+        plan.children.append(Child('emulator', 'cr_bridge', 'emulator', {}, restart='never',
+                                   args=['--link', device, '--speed', repr(float(speed)),
+                                         '--seed', str(seed), '--start', 'A',
+                                         '--arena', arena]))
+    plan.children.append(Child('bridge', 'cr_bridge', 'bridge', {
+        'node.device': device, 'node.seed': seed, 'node.arena_file': arena,
+        'node.start': 'wander', 'node.wait_for_learner': True}, restart='never'))
 
 
 # ---------------------------------------------------------------------------- the curve
@@ -373,6 +399,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--out', type=Path, help='output folder (default results/run/CONDITION-'
                    'seedS-DATE)')
     p.add_argument('--arena', type=str, default='', help='arena file (default config/arena.yaml)')
+    p.add_argument('--robot', choices=('sim', 'bridge'), default='sim',
+                   help="the robot interface: the simulator (default) or the real robot's "
+                        "bridge (cr_bridge), which runs on the robot's clock: real time")
+    p.add_argument('--device', default='emulator', metavar='URL',
+                   help="with --robot bridge: 'emulator' (default: cr_bridge's device emulator "
+                        'on the loopback; --speed X runs its clock X times wall time) or the '
+                        "robot's link (udp://HOST:PORT, a serial device, a pyserial URL)")
     p.add_argument('--block', type=int, default=50,
                    help='episodes per point of the learning curve (default 50, the paper)')
     p.add_argument('--time-limit', type=float, default=0.0, metavar='MIN',
@@ -404,6 +437,14 @@ def _check_args(args: argparse.Namespace) -> str | None:
         return f'--resume {args.resume}: no such checkpoint'
     if args.block < 1:
         return f'--block {args.block}: must be at least 1'
+    if args.robot == 'bridge':
+        if args.single_process:
+            return '--single-process runs the simulator only: not with --robot bridge'
+        if args.speed == 0:
+            args.speed = 1.0              # the robot's clock does not wait: real time
+        if args.device != 'emulator' and args.speed != 1.0:
+            return f'--speed {args.speed}: a real robot runs at real time (only the emulator ' \
+                   'runs faster)'
     if args.time_limit < 0:
         return f'--time-limit {args.time_limit}: must be >= 0 minutes'
     return None
@@ -424,13 +465,15 @@ def main(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     out.mkdir(parents=True, exist_ok=True)
     plan = plan_graph(args.condition, args.seed, out, args.speed,
-                      str(args.resume.resolve()) if args.resume else '', args.arena)
+                      str(args.resume.resolve()) if args.resume else '', args.arena,
+                      args.robot, args.device)
     tty = sys.stderr.isatty() and not args.quiet
 
     def say(text: str) -> None:
         print(('\r\033[K' if tty else '') + text, file=sys.stderr, flush=True)
 
     say(f'clis run: {args.condition}, seed {args.seed}, {args.episodes} episodes, '
+        + (f'robot bridge ({args.device}), ' if args.robot == 'bridge' else '') +
         f'speed {"max" if args.speed == 0 else f"x{args.speed:g}"}, ROS_DOMAIN_ID '
         f'{os.environ.get("ROS_DOMAIN_ID")}, out {out}')
     if args.single_process:
@@ -487,10 +530,11 @@ def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
     monitor = Monitor()
     code = EXIT_OK
     try:
-        for child in plan.children[:-1]:               # everything but the robot interface
+        graph = [c for c in plan.children[:-1] if c.args is None]
+        for child in graph:                            # everything but the robot interface
             sup.start(child)
         deadline = time.monotonic() + args.startup_timeout
-        missing = monitor.up([c.name for c in plan.children[:-1]])
+        missing = monitor.up([c.name for c in graph])
         while missing and not interrupted:
             if (code := sup.check()) is not None:
                 return code
@@ -499,8 +543,10 @@ def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
                     f'{args.startup_timeout} s (see {out}/logs)')
                 return EXIT_STARTUP
             monitor.spin(0.1)
-            missing = monitor.up([c.name for c in plan.children[:-1]])
-        sup.start(plan.children[-1])
+            missing = monitor.up([c.name for c in graph])
+        for child in plan.children:                    # the robot interface (and its device)
+            if child not in graph:
+                sup.start(child)
         view = ProgressView(args.episodes, args.block, args.quiet, tty, args.time_limit)
         while not interrupted:
             monitor.spin(0.1)

@@ -321,7 +321,7 @@ class ModuleNode(GraphNode):
         if self.pub_belief is not None:
             loc = self.decider.module.localizer
             self.pub_belief.publish(conv.belief_msg(
-                loc.belief_grid, loc.cell, (-loc.half_size, -loc.half_size), t, self.cfg.frame))
+                loc.belief_grid, loc.cell, loc.origin, t, self.cfg.frame))
 
 
 def main(args: list[str] | None = None, kind: str = 'innate') -> None:

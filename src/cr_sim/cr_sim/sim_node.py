@@ -222,7 +222,7 @@ class SimNode(Node):
             (self.pub_odom, conv.odom_msg(self.sim.pose, obs.wheels, self.wheel_base, t,
                                           self.cfg.map_frame, frame)),
             (self.pub_clock, conv.clock_msg(t))]
-        if t >= self.next_marker_t:
+        if t >= self.next_marker_t - 1e-6:   # sim_time sums floats: 0.1 may be 0.0999999
             self.next_marker_t = t + self.cfg.markers_period
             self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
                 self.sim.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
@@ -248,7 +248,11 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
         if node.holding:                  # the clock stands still (learner gate, lockstep)
             executor.spin_once(timeout_sec=0.005)
             node.check_hold()
-            next_wall = time.monotonic()
+            if period == 0:
+                next_wall = time.monotonic()
+            # paced (speed > 0): the schedule goes on across the hold, so that a clock held at
+            # every instant (lockstep) is still capped at speed x wall time; a long hold (the
+            # learner) falls more than 1 s behind and restarts the schedule below
             if node.holding or period > 0:
                 continue
             # released by the command just taken: the next tick at once (the graph's

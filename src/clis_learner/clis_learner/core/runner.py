@@ -157,14 +157,15 @@ def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -
     """
     if agent.place is None or len(agent.modules) < 2:
         return None
-    half = sim.arena.half
-    centres = np.arange(-half + resolution / 2, half, resolution)
+    x0, y0, x1, y1 = sim.arena.bounds
+    xs = np.arange(x0 + resolution / 2, x1, resolution)
+    ys = np.arange(y0 + resolution / 2, y1, resolution)
     dest = sim.arena.destination
     loc = agent.place.localizer
     i_place = agent.modules.index(agent.place)
-    p_map = np.full((len(centres), len(centres)), np.nan)
-    for iy, y in enumerate(centres):
-        for ix, x in enumerate(centres):
+    p_map = np.full((len(ys), len(xs)), np.nan)
+    for iy, y in enumerate(ys):
+        for ix, x in enumerate(xs):
             heading = math.atan2(dest.y - y, dest.x - x)
             try:
                 obs = sim.reset(start=(x, y, heading))
@@ -179,7 +180,7 @@ def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -
                                     agent.params.common.beta)
             p_map[iy, ix] = probs[i_place]
     loc.reset()
-    return {'x': centres.tolist(), 'y': centres.tolist(), 'p': p_map.tolist()}
+    return {'x': xs.tolist(), 'y': ys.tolist(), 'p': p_map.tolist()}
 
 
 def arena_dict(arena: Arena) -> dict:
@@ -187,7 +188,7 @@ def arena_dict(arena: Arena) -> dict:
     def boxes(items):
         return [[*b.lo, *b.hi] for b in items]
     d = arena.destination
-    return {'half_size': arena.half, 'short': boxes(arena.short_obstacles),
+    return {'bounds': list(arena.bounds), 'short': boxes(arena.short_obstacles),
             'tall': boxes(arena.tall_obstacles),
             'landmarks': [[lm.x, lm.y] for lm in arena.landmarks],
             'destination': [d.x, d.y, d.goal_radius],

@@ -1,7 +1,8 @@
 """Grid Markov localization on landmark bearings: the state of the place module (paper III-D).
 
 The belief ``b_pl`` is a probability over a grid of poses ``(x, y, theta)``: square cells of
-side ``cell_size`` over the ``2 half_size`` square floor, times ``n_headings`` heading bins.
+side ``cell_size`` over the floor (a square, or any rectangle), times ``n_headings`` heading
+bins.
 Paper: 15 cm and 30 deg over 3 m x 3 m, "450 states"; that grid has 20 x 20 x 12 = 4800 cells
 (450 matches neither 20 x 20 = 400 nor any whole number of 30 deg bins), so we keep the stated
 resolutions and get 4800 cells; both resolutions are parameters.
@@ -87,8 +88,9 @@ class MarkovLocalizer:
     params : LocalizationParams
     landmarks_xy : array_like, shape (M, 2)
         Landmark positions [m], in the order of the bearings given to :meth:`update`.
-    half_size : float
-        The floor is ``[-half_size, half_size]^2`` [m].
+    half_size : float or tuple of float
+        The floor: ``[-half_size, half_size]^2`` [m], or any rectangle ``(xmin, ymin, xmax,
+        ymax)`` (:meth:`cr_sim.core.arena.Arena.floor`).
     boxes : array_like, shape (K, 4), optional
         Obstacles as ``(xmin, ymin, xmax, ymax)`` [m]: cells whose centre is inside are never
         occupied.
@@ -98,8 +100,11 @@ class MarkovLocalizer:
     shape : tuple of int
         ``(n_headings, nx, ny)``.
     xs, ys : np.ndarray, shape (nx,), (ny,)
-        Cell centres [m] (``nx = ny = round(2 half_size / cell_size)``; the actual cell side
-        is ``cell = 2 half_size / nx``).
+        Cell centres [m] (``nx = round(width / cell_size)``; the actual cell side is
+        ``cell = width / nx``; ``ny = round(height / cell)`` cells of that side, centred on
+        the floor).
+    origin : tuple of float
+        South-west corner of the grid [m].
     thetas : np.ndarray, shape (n_headings,)
         Heading-bin centres [rad], ``k 2 pi / n_headings``.
     """
@@ -108,20 +113,32 @@ class MarkovLocalizer:
                  boxes: ArrayLike | None = None) -> None:
         self.params = params
         self.landmarks_xy = np.asarray(landmarks_xy, dtype=np.float64).reshape(-1, 2)
-        self.half_size = float(half_size)
-        n = max(1, int(round(2.0 * self.half_size / params.cell_size)))
-        self.cell = 2.0 * self.half_size / n
-        self.xs = -self.half_size + self.cell * (np.arange(n) + 0.5)
-        self.ys = self.xs.copy()
+        if np.ndim(half_size) == 0:
+            self.half_size = float(half_size)
+            x0 = y0 = -self.half_size
+            x1 = y1 = self.half_size
+        else:                                   # a rectangle (xmin, ymin, xmax, ymax)
+            self.half_size = None
+            x0, y0, x1, y1 = (float(v) for v in half_size)
+        n = max(1, int(round((x1 - x0) / params.cell_size)))
+        self.cell = (x1 - x0) / n
+        ny = max(1, int(round((y1 - y0) / self.cell)))
+        off = 0.5 * ((y1 - y0) - ny * self.cell)
+        if abs(off) < 1e-9:
+            off = 0.0
+        self.origin = (x0, y0 + off)
+        self.xs = x0 + self.cell * (np.arange(n) + 0.5)
+        self.ys = self.xs.copy() if (y0, ny) == (x0, n) else \
+            self.origin[1] + self.cell * (np.arange(ny) + 0.5)
         self.n_headings = params.n_headings
         self.bin = 2.0 * math.pi / self.n_headings
         self.thetas = self.bin * np.arange(self.n_headings)
-        self.shape = (self.n_headings, n, n)
+        self.shape = (self.n_headings, n, ny)
         self.size = int(np.prod(self.shape))
         self.kappa = 1.0 / math.radians(params.bearing_sigma_deg) ** 2
 
         gx, gy = np.meshgrid(self.xs, self.ys, indexing='ij')           # (nx, ny)
-        free = np.ones((n, n), dtype=bool)
+        free = np.ones((n, ny), dtype=bool)
         if boxes is not None:
             for x0, y0, x1, y1 in np.asarray(boxes, dtype=np.float64).reshape(-1, 4):
                 free &= ~((gx >= x0) & (gx <= x1) & (gy >= y0) & (gy <= y1))
@@ -149,6 +166,7 @@ class MarkovLocalizer:
             np.stack(cs, axis=0).transpose(1, 2, 0, 3).reshape(2 * m, -1))
         self._p = self._uniform.copy()
         self._ix = np.arange(n)
+        self._iy = np.arange(ny)
 
     # ------------------------------------------------------------------ state
 
@@ -180,9 +198,9 @@ class MarkovLocalizer:
 
     def cell_of(self, x: float, y: float, theta: float) -> tuple[int, int, int]:
         """Grid index ``(k, i, j)`` of a pose (clipped to the grid)."""
-        n = self.shape[1]
-        i = min(max(int(math.floor((x + self.half_size) / self.cell)), 0), n - 1)
-        j = min(max(int(math.floor((y + self.half_size) / self.cell)), 0), n - 1)
+        _, n, ny = self.shape
+        i = min(max(int(math.floor((x - self.origin[0]) / self.cell)), 0), n - 1)
+        j = min(max(int(math.floor((y - self.origin[1]) / self.cell)), 0), ny - 1)
         k = int(round(theta / self.bin)) % self.n_headings
         return k, i, j
 
@@ -232,20 +250,20 @@ class MarkovLocalizer:
 
     def _shift_xy(self, p: np.ndarray, dx: float, dy: float) -> np.ndarray:
         """Shift every heading layer k by ``R(theta_k) (dx, dy)`` (bilinear, zero fill)."""
-        n = self.shape[1]
+        _, n, ny = self.shape
         c, s = np.cos(self.thetas), np.sin(self.thetas)
         sx = np.clip((c * dx - s * dy) / self.cell, -n - 1.0, n + 1.0)  # (K,) in cells
-        sy = np.clip((s * dx + c * dy) / self.cell, -n - 1.0, n + 1.0)
+        sy = np.clip((s * dx + c * dy) / self.cell, -ny - 1.0, ny + 1.0)
         ix, iy = np.floor(sx).astype(int), np.floor(sy).astype(int)
         fx, fy = (sx - ix)[:, None, None], (sy - iy)[:, None, None]
         pad = int(max(np.abs(ix).max(), np.abs(iy).max())) + 2
-        pp = np.zeros((self.n_headings, n + 2 * pad, n + 2 * pad))
-        pp[:, pad:pad + n, pad:pad + n] = p
+        pp = np.zeros((self.n_headings, n + 2 * pad, ny + 2 * pad))
+        pp[:, pad:pad + n, pad:pad + ny] = p
         kk = np.arange(self.n_headings)[:, None]
         # mass at cell c moves to c + s = c + i + f: out[c] = (1 - f) p[c - i] + f p[c - i - 1]
         rows = pad + self._ix[None, :] - ix[:, None]                     # (K, nx)
         a = (1.0 - fx) * pp[kk, rows, :] + fx * pp[kk, rows - 1, :]      # (K, nx, ny + 2 pad)
-        cols = (pad + self._ix[None, :] - iy[:, None])[:, None, :]       # (K, 1, ny)
+        cols = (pad + self._iy[None, :] - iy[:, None])[:, None, :]       # (K, 1, ny)
         kk3, ii3 = kk[:, :, None], self._ix[None, :, None]
         return (1.0 - fy) * a[kk3, ii3, cols] + fy * a[kk3, ii3, cols - 1]
 

@@ -418,7 +418,7 @@ def arena_map(arena: Any) -> tuple[np.ndarray, float, np.ndarray]:
     """What the modules know of an arena (``cr_sim.core.arena.Arena``): landmark positions
     (M, 2), the floor's half side [m], obstacle boxes (K, 4)."""
     landmarks = np.array([(lm.x, lm.y) for lm in arena.landmarks], dtype=np.float64)
-    return landmarks, float(arena.half), np.array(arena.box_tuples(), dtype=np.float64)
+    return landmarks, arena.floor(), np.array(arena.box_tuples(), dtype=np.float64)
 
 
 def make_modules(params: ModuleParamsLike, condition: str, landmarks_xy: ArrayLike,

@@ -5,8 +5,11 @@ code. :func:`load_arena` reads and validates a file; :func:`parse_arena` does th
 mapping already in memory. Every error is an :class:`ArenaError` (a ``ConfigError``) whose
 message names the file, the key and the object at fault.
 
-Frame: metres, floor centred at the origin, x to the east, y to the north, headings
-counter-clockwise from +x. The walls are the border of ``[-size/2, size/2]^2``.
+Frame: metres, x to the east, y to the north, headings counter-clockwise from +x. The floor
+is either a square of side ``size`` centred at the origin (``size: 3.0``), or any rectangle
+measured in the lab's own frame (``floor: {width, height, origin: [x, y]}``, origin = the
+lab coordinates of the floor's south-west corner); every position in the file is in that
+frame. The walls are the border of the floor, :attr:`Arena.bounds`.
 """
 
 from __future__ import annotations
@@ -20,16 +23,18 @@ from typing import Any
 
 import numpy as np
 
-from cr_sim.core.geometry import disc_gap, wall_boxes
+from cr_sim.core.geometry import disc_gap
 from cr_sim.core.params import ConfigError, config_dir, load_yaml
 
 __all__ = [
     'ArenaError', 'Box', 'Destination', 'Landmark', 'Start', 'Arena', 'load_arena',
-    'parse_arena', 'ARENA_KEYS',
+    'parse_arena', 'ARENA_KEYS', 'FLOOR_KEYS',
 ]
 
-#: Top-level keys of an arena file (all required).
+#: Top-level keys of an arena file (all required; ``floor`` may replace ``size``).
 ARENA_KEYS = ('size', 'destination', 'short_obstacles', 'tall_obstacles', 'landmarks', 'starts')
+#: Keys of ``floor`` (a rectangle in the lab's frame).
+FLOOR_KEYS = ('width', 'height', 'origin')
 
 
 class ArenaError(ConfigError):
@@ -97,9 +102,12 @@ class Start:
 
 @dataclass(frozen=True, slots=True)
 class Arena:
-    """A validated arena layout (see ``config/arena.yaml``)."""
+    """A validated arena layout (see ``config/arena.yaml``).
 
-    size: float
+    ``bounds`` = ``(xmin, ymin, xmax, ymax)`` of the floor [m]: the walls are its border.
+    """
+
+    bounds: tuple[float, float, float, float]
     destination: Destination
     short_obstacles: tuple[Box, ...]
     tall_obstacles: tuple[Box, ...]
@@ -108,9 +116,47 @@ class Arena:
     source: str = '<memory>'
 
     @property
+    def width(self) -> float:
+        """Extent of the floor along x [m]."""
+        return self.bounds[2] - self.bounds[0]
+
+    @property
+    def height(self) -> float:
+        """Extent of the floor along y [m]."""
+        return self.bounds[3] - self.bounds[1]
+
+    @property
+    def size(self) -> float:
+        """The longer side of the floor [m] (the side of a square one)."""
+        return max(self.width, self.height)
+
+    @property
+    def centred_square(self) -> bool:
+        """Whether the floor is a square centred at the origin (the paper's arena)."""
+        x0, y0, x1, y1 = self.bounds
+        return x0 == y0 == -x1 == -y1
+
+    @property
     def half(self) -> float:
-        """Half the side: the walls are at x, y = +-half [m]."""
-        return 0.5 * self.size
+        """Half the side of a square floor centred at the origin: the walls are at x, y =
+        +-half [m]. Any other floor has none: use :attr:`bounds` (ValueError)."""
+        if not self.centred_square:
+            raise ValueError(f'{self.source}: the floor {self.bounds} is not a square centred '
+                             'at the origin: use Arena.bounds')
+        return self.bounds[2]
+
+    def floor(self) -> float | tuple[float, float, float, float]:
+        """The floor as the geometry and localization cores take it: the half side of a
+        centred square (the fast, exact path of the paper's arena), else :attr:`bounds`."""
+        return self.half if self.centred_square else self.bounds
+
+    def gap_boxes(self) -> tuple[tuple[tuple[float, float, float, float], ...], float]:
+        """``(boxes, half)`` for :func:`disc_gap`: the obstacles and the half side of a
+        centred square; for any other floor the obstacles plus its 4 walls as boxes, with
+        ``half = inf`` (the same gap, the walls found among the boxes)."""
+        if self.centred_square:
+            return self.box_tuples(), self.half
+        return self.box_tuples() + self.wall_boxes(thickness=1.0), math.inf
 
     @property
     def obstacles(self) -> tuple[Box, ...]:
@@ -134,7 +180,7 @@ class Arena:
         """Obstacles (tall first, then short, then optionally the 4 walls) as (B, 2, 2) array."""
         boxes = self.tall_obstacles if tall_only else self.obstacles
         arr = np.array([[b.lo, b.hi] for b in boxes], dtype=np.float64).reshape(-1, 2, 2)
-        return np.concatenate([arr, wall_boxes(self.half)]) if walls else arr
+        return np.concatenate([arr, _walls(self.bounds, 1.0)]) if walls else arr
 
     def box_tuples(self) -> tuple[tuple[float, float, float, float], ...]:
         """Obstacles as ``(lo_x, lo_y, hi_x, hi_y)`` tuples (for :func:`disc_gap`)."""
@@ -155,11 +201,11 @@ class Arena:
         For display; the physics treats the walls as infinitely thick.
         """
         return tuple(tuple(float(v) for v in (*b[0], *b[1]))
-                     for b in wall_boxes(self.half, thickness))
+                     for b in _walls(self.bounds, thickness))
 
     def gap(self, x: float, y: float, radius: float) -> float:
         """Free distance of a disc at (x, y) to the nearest obstacle or wall [m] (< 0: overlap)."""
-        return disc_gap(x, y, radius, self.box_tuples(), self.half)
+        return disc_gap(x, y, radius, *self.gap_boxes())
 
     def check(self, robot_radius: float) -> None:
         """Check the layout against a robot of radius ``robot_radius``.
@@ -182,12 +228,27 @@ class Arena:
                              f'robot radius {robot_radius} m of {culprit}: it cannot be reached')
 
     def _blocker(self, x: float, y: float, radius: float) -> str:
-        if min(self.half - abs(x), self.half - abs(y)) < radius:
+        x0, y0, x1, y1 = self.bounds
+        if min(x - x0, x1 - x, y - y0, y1 - y) < radius:
             return 'the wall'
         for b in self.obstacles:
             if disc_gap(x, y, radius, ((*b.lo, *b.hi),), math.inf) < 0.0:
                 return f'{"tall" if b.tall else "short"} obstacle {b.name!r}'
         return ''
+
+
+def _walls(bounds: tuple[float, float, float, float], thickness: float) -> np.ndarray:
+    """The four walls of the floor ``bounds`` as boxes outside it, shape (4, 2, 2): west,
+    east, south, north, each ``thickness`` thick (for a centred square exactly
+    :func:`cr_sim.core.geometry.wall_boxes`)."""
+    x0, y0, x1, y1 = bounds
+    t = thickness
+    return np.array([
+        [[x0 - t, y0 - t], [x0, y1 + t]],     # west  x <= xmin
+        [[x1, y0 - t], [x1 + t, y1 + t]],     # east  x >= xmax
+        [[x0 - t, y0 - t], [x1 + t, y0]],     # south y <= ymin
+        [[x0 - t, y1], [x1 + t, y1 + t]],     # north y >= ymax
+    ], dtype=np.float64)
 
 
 # ------------------------------------------------------------------------------------------
@@ -231,7 +292,7 @@ def _name(value: Any, where: str) -> str:
     return value
 
 
-def _boxes(items: Any, key: str, tall: bool, half: float) -> tuple[Box, ...]:
+def _boxes(items: Any, key: str, tall: bool, bounds: tuple[float, ...]) -> tuple[Box, ...]:
     if items is None:
         items = []
     if not isinstance(items, list):
@@ -246,11 +307,12 @@ def _boxes(items: Any, key: str, tall: bool, half: float) -> tuple[Box, ...]:
                   center=_pair(f['center'], f'{label}.center'),
                   size=_pair(f['size'], f'{label}.size', lo=0.0, lo_open=True), tall=tall)
         eps = 1e-12
-        if min(box.lo) < -half - eps or max(box.hi) > half + eps:
+        if (box.lo[0] < bounds[0] - eps or box.lo[1] < bounds[1] - eps
+                or box.hi[0] > bounds[2] + eps or box.hi[1] > bounds[3] + eps):
             raise ArenaError(
                 f'{"tall" if tall else "short"} obstacle {box.name!r} ({key}[{i}]) spans '
                 f'x in [{box.lo[0]:g}, {box.hi[0]:g}], y in [{box.lo[1]:g}, {box.hi[1]:g}]: '
-                f'(partly) outside the walls at +-{half:g} m')
+                f'(partly) outside the walls {_describe(bounds)}')
         boxes.append(box)
     return tuple(boxes)
 
@@ -281,19 +343,46 @@ def parse_arena(data: Mapping[str, Any], robot_radius: float, source: str = '<me
         raise ArenaError(f'{source}: {exc}') from None
 
 
+def _describe(bounds: tuple[float, ...]) -> str:
+    x0, y0, x1, y1 = bounds
+    if x0 == y0 == -x1 == -y1:
+        return f'at +-{x1:g} m'
+    return f'x in [{x0:g}, {x1:g}], y in [{y0:g}, {y1:g}] m'
+
+
+def _floor(top: Mapping[str, Any]) -> tuple[float, float, float, float]:
+    """``bounds`` of ``size`` (a centred square) or ``floor`` (a rectangle in the lab frame)."""
+    if ('size' in top) == ('floor' in top):
+        raise ArenaError('give the floor either as size (a square centred at the origin) or '
+                         'as floor: {width, height, origin: [x, y]} (a rectangle whose '
+                         'south-west corner is at origin), not both')
+    if 'size' in top:
+        half = 0.5 * _number(top['size'], 'size', lo=0.0, hi=100.0, lo_open=True)
+        return (-half, -half, half, half)
+    f = _fields(top['floor'], 'floor', FLOOR_KEYS)
+    w = _number(f['width'], 'floor.width', lo=0.0, hi=100.0, lo_open=True)
+    h = _number(f['height'], 'floor.height', lo=0.0, hi=100.0, lo_open=True)
+    x0, y0 = _pair(f['origin'], 'floor.origin')
+    return (x0, y0, x0 + w, y0 + h)
+
+
 def _parse(data: Mapping[str, Any], robot_radius: float, source: str) -> Arena:
-    top = _fields(data, '', ARENA_KEYS)
-    size = _number(top['size'], 'size', lo=0.0, hi=100.0, lo_open=True)
-    half = 0.5 * size
+    keys = ARENA_KEYS if 'floor' not in (data if isinstance(data, Mapping) else {}) \
+        else ('floor',) + ARENA_KEYS[1:]
+    if isinstance(data, Mapping) and 'floor' in data and 'size' in data:
+        _floor(data)                                  # the message: not both
+    top = _fields(data, '', keys)
+    bounds = _floor(top)
+    x0, y0, x1, y1 = bounds
 
     d = _fields(top['destination'], 'destination', ('x', 'y', 'goal_radius'))
-    dest = Destination(x=_number(d['x'], 'destination.x', -half, half),
-                       y=_number(d['y'], 'destination.y', -half, half),
+    dest = Destination(x=_number(d['x'], 'destination.x', x0, x1),
+                       y=_number(d['y'], 'destination.y', y0, y1),
                        goal_radius=_number(d['goal_radius'], 'destination.goal_radius',
-                                           0.0, size, lo_open=True))
+                                           0.0, max(x1 - x0, y1 - y0), lo_open=True))
 
-    short = _boxes(top['short_obstacles'], 'short_obstacles', False, half)
-    tall = _boxes(top['tall_obstacles'], 'tall_obstacles', True, half)
+    short = _boxes(top['short_obstacles'], 'short_obstacles', False, bounds)
+    tall = _boxes(top['tall_obstacles'], 'tall_obstacles', True, bounds)
     names = [b.name for b in short + tall]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -311,9 +400,10 @@ def _parse(data: Mapping[str, Any], robot_radius: float, source: str) -> Arena:
         lm = Landmark(name=_name(f['name'], f'{label}.name'),
                       colour=_name(f['colour'], f'{label}.colour'),
                       x=_number(f['x'], f'{label}.x'), y=_number(f['y'], f'{label}.y'))
-        if max(abs(lm.x), abs(lm.y)) > half + 1e-12:
+        eps = 1e-12
+        if not (x0 - eps <= lm.x <= x1 + eps and y0 - eps <= lm.y <= y1 + eps):
             raise ArenaError(f'landmark {lm.name!r} at ({lm.x}, {lm.y}) is outside the walls '
-                             f'at +-{half:g} m (put it on or inside the wall)')
+                             f'{_describe(bounds)} (put it on or inside the wall)')
         landmarks.append(lm)
     lnames = [lm.name for lm in landmarks]
     if len(set(lnames)) != len(lnames):
@@ -331,7 +421,7 @@ def _parse(data: Mapping[str, Any], robot_radius: float, source: str) -> Arena:
                             heading_deg=_number(f['heading_deg'], f'{label}.heading_deg',
                                                 -360.0, 360.0)))
 
-    arena = Arena(size=size, destination=dest, short_obstacles=short, tall_obstacles=tall,
+    arena = Arena(bounds=bounds, destination=dest, short_obstacles=short, tall_obstacles=tall,
                   landmarks=tuple(landmarks), starts=tuple(starts), source=source)
     arena.check(robot_radius)
     return arena

@@ -283,8 +283,7 @@ class Simulator:
         self._dt = ep.dt
         # integer step count of the time limit (t = k dt, no accumulated rounding)
         self._k_max = max(1, math.ceil(ep.time_limit / ep.dt - 1e-9))
-        self._boxes = arena.box_tuples()
-        self._half = arena.half
+        self._boxes, self._half = arena.gap_boxes()   # a non-square floor: walls as boxes
         dest = arena.destination
         self._dest = (dest.x, dest.y)
         self._goal_r2 = dest.goal_radius ** 2
@@ -301,7 +300,7 @@ class Simulator:
         self._planes = box_planes(arena.box_array(walls=True))
         self._n_tall = len(arena.tall_obstacles)
         self._ir_range = sp.ir_range
-        diag = math.hypot(arena.size, arena.size)
+        diag = math.hypot(arena.width, arena.height)
         self._cam_range = sp.camera_range if sp.camera_range < diag else None
         sig_b = math.radians(sp.bearing_noise_deg)
         self._noisy = sp.ir_noise_sigma > 0.0 or sig_b > 0.0
@@ -417,9 +416,10 @@ class Simulator:
         return dx * dx + dy * dy <= self._goal_r2
 
     def _random_pose(self) -> tuple[float, float, float]:
-        lim = self._half - self._r
+        x0, y0, x1, y1 = self.arena.bounds
+        r = self._r
         for _ in range(_MAX_TRIES):
-            x, y = self._rng.uniform(-lim, lim, size=2)
+            x, y = self._rng.uniform((x0 + r, y0 + r), (x1 - r, y1 - r))
             th = self._rng.uniform(-math.pi, math.pi)
             if (disc_gap(x, y, self._r, self._boxes, self._half) >= self._tol
                     and not self._in_goal(x, y)):

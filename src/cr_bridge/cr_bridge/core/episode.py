@@ -1,0 +1,230 @@
+"""The episode logic on the real robot: what the simulator gets for free, from the sensors.
+
+In the simulator the episode end, the rewards and the next start come from ground truth. On the
+robot the bridge derives them from what the robot senses, frame by frame, with the simulator's
+rules and parameters (``config/sim.yaml`` sections ``episode`` and ``wander``):
+
+* **destination reached**: the omni-camera sees the destination blob and its range estimate
+  is within the arena's ``goal_radius`` -> ``reward_goal`` and the episode ends (``reached``);
+* **collision**: a new contact (not in contact at the previous frame, in contact now) ->
+  ``reward_collision`` once, nothing more while it stays pressed (the simulator's rule). Contact
+  = the bump switch, or (if enabled) the accelerometer's horizontal magnitude above
+  ``accel_threshold``, or (if enabled) an IR reading below ``ir_contact``;
+* **time limit**: ``time_limit`` s of device time after the start -> ``timeout``;
+* **next start**: between episodes the robot drives itself with the simulator's hand-made
+  wander policy (:class:`cr_sim.core.wander.WanderPolicy`, reused as is) for at least
+  ``wander_time`` s, until the learner has learned from the last episode (the learner gate of
+  :class:`cr_sim.core.gate.EpisodeGate`, reused) and outside the goal; then the next episode
+  starts where it stands.
+
+Rewards are reported on every frame of an episode after its first (as the simulator reports
+one per step), the first frame of an episode is its start instant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+
+from cr_sim.core.gate import EpisodeGate
+from cr_sim.core.params import dataclass as frozen_dataclass
+from cr_sim.core.params import param
+from cr_sim.core.sim import EpisodeParams, Observation
+from cr_sim.core.wander import WanderParams, WanderPolicy
+import numpy as np
+
+__all__ = ['ContactParams', 'Reading', 'Event', 'Step', 'RobotEpisodes', 'START_MODES']
+
+#: ``'wander'``: every episode starts where the wander policy leaves the robot (as in
+#: ``clis run``); ``'here'``: the first one starts at once where the robot stands, the next
+#: ones after the wander.
+START_MODES = ('wander', 'here')
+
+
+@frozen_dataclass(frozen=True)
+class ContactParams:
+    """How the bridge detects a contact (``config/bridge.yaml`` section ``contact``)."""
+
+    bump: bool = param(doc='the bump switch signals a contact')
+    accel_threshold: float = param(0.0, 1000.0, doc='horizontal acceleration above this is a '
+                                   'contact [m/s^2]; 0 = not used')
+    ir_contact: float = param(0.0, 0.5, doc='an IR reading below this is a contact [m]; '
+                              '0 = not used')
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One sensor frame in the bridge's clock.
+
+    Attributes
+    ----------
+    t : float
+        Bridge time [s] (device time, monotonic).
+    ir : np.ndarray, shape (n_ir,)
+    dest_bearing, dest_distance : float
+        NaN when the destination is not seen / not ranged.
+    landmark_bearings : np.ndarray, shape (n_landmarks,)
+    wheels : np.ndarray, shape (2,)
+    bump : int
+    accel : tuple of float, shape (3,)
+    """
+
+    t: float
+    ir: np.ndarray
+    dest_bearing: float
+    dest_distance: float
+    landmark_bearings: np.ndarray
+    wheels: np.ndarray
+    bump: int = 0
+    accel: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def observation(self, t0: float) -> Observation:
+        """The simulator's :class:`Observation` of this reading (time since ``t0``)."""
+        return Observation(self.t - t0, self.ir, self.dest_bearing, self.landmark_bearings,
+                           self.wheels)
+
+
+@dataclass(frozen=True)
+class Event:
+    """An episode event: ``start`` / ``reached`` / ``timeout`` / ``reset`` at ``t``."""
+
+    name: str
+    t: float
+    values: dict = field(default_factory=dict)
+
+
+@dataclass
+class Step:
+    """What one reading gives: events (in order), the reward of the frame (None outside an
+    episode), and the wheel command of the wander policy (None: the controller drives)."""
+
+    events: list[Event] = field(default_factory=list)
+    reward: float | None = None
+    wander: np.ndarray | None = None
+
+
+class RobotEpisodes:
+    """Episodes from sensor frames (module docstring).
+
+    Parameters
+    ----------
+    episode : EpisodeParams
+        Rewards, time limit, wander time (the simulator's).
+    wander : WanderParams
+        The wander policy's parameters (the simulator's).
+    contact : ContactParams
+    goal_radius : float
+        The arena's destination radius [m].
+    ir_angles : array_like, shape (n_ir,)
+        Beam angles [rad] (for the wander policy).
+    gate : EpisodeGate
+        Its learner gate decides when the next episode may start (lockstep is not used: the
+        robot's clock does not wait).
+    rng : np.random.Generator
+        The wander policy's steering noise.
+    start : str
+        One of :data:`START_MODES`.
+    """
+
+    def __init__(self, episode: EpisodeParams, wander: WanderParams, contact: ContactParams,
+                 goal_radius: float, ir_angles, gate: EpisodeGate, rng: np.random.Generator,
+                 start: str = 'wander') -> None:
+        if start not in START_MODES:
+            raise ValueError(f'start {start!r}: one of {", ".join(START_MODES)}')
+        self.p = episode
+        self.contact = contact
+        self.goal_radius = goal_radius
+        self.gate = gate
+        self.policy = WanderPolicy(wander, ir_angles, rng)
+        self.start_mode = start
+        self.state = 'wander'            # 'run' (an episode) or 'wander' (between)
+        self.episode = 0
+        self.t0 = 0.0
+        self.ret = 0.0
+        self.in_contact = False
+        self.wander_since: float | None = None
+        self.gate_open = False
+        self._first = True
+
+    @property
+    def running(self) -> bool:
+        return self.state == 'run'
+
+    def is_contact(self, r: Reading) -> bool:
+        c = self.contact
+        if c.bump and r.bump:
+            return True
+        if c.accel_threshold > 0 and math.hypot(r.accel[0], r.accel[1]) > c.accel_threshold:
+            return True
+        return bool(c.ir_contact > 0 and r.ir.size and float(r.ir.min()) < c.ir_contact)
+
+    def in_goal(self, r: Reading) -> bool:
+        return (not math.isnan(r.dest_bearing) and not math.isnan(r.dest_distance)
+                and r.dest_distance <= self.goal_radius)
+
+    def step(self, r: Reading, now: float) -> Step:
+        """One sensor frame at wall time ``now`` (wall time is for the learner gate only)."""
+        out = Step()
+        contact = self.is_contact(r)
+        if self.state == 'run':
+            collision = contact and not self.in_contact
+            reached = self.in_goal(r)
+            timeout = not reached and r.t - self.t0 >= self.p.time_limit - 1e-6
+            reward = (self.p.reward_collision if collision else 0.0) + \
+                (self.p.reward_goal if reached else 0.0)
+            self.ret += reward
+            out.reward = reward
+            self.in_contact = contact
+            if reached or timeout:
+                out.events.append(self._end('reached' if reached else 'timeout', r.t, now))
+            return out
+        self.in_contact = contact
+        # between episodes: wander until the next start
+        if self.wander_since is None:
+            self.wander_since = r.t
+            self.policy.reset()
+            if self._first:
+                self._first = False
+                self.gate_open = self.gate.first(now)
+        if not self.gate_open:
+            action, _ = self.gate.poll(now)
+            self.gate_open = action == 'start'
+        here = self.start_mode == 'here' and self.episode == 0
+        if self.gate_open and not self.in_goal(r) and (
+                here or r.t - self.wander_since >= self.p.wander_time - 1e-6):
+            out.events.append(self._start(r))
+            return out
+        out.wander = self.policy.act(r.observation(self.wander_since))
+        return out
+
+    def _start(self, r: Reading) -> Event:
+        self.state = 'run'
+        self.episode += 1
+        self.t0 = r.t
+        self.ret = 0.0
+        self.wander_since = None
+        self.gate_open = False
+        self.gate.started(self.episode)
+        values = {'episode': self.episode, 'start': 'here' if self.episode == 1 and
+                  self.start_mode == 'here' else 'wander'}
+        if self.gate.wait_for_learner:
+            values['params_version'] = self.gate.version
+        return Event('start', r.t, values)
+
+    def _end(self, name: str, t: float, now: float) -> Event:
+        self.state = 'wander'
+        self.wander_since = None
+        ev = Event(name, t, {'episode': self.episode, 'episode_return': self.ret,
+                             'duration': t - self.t0})
+        self.gate_open = self.gate.ended(self.episode, now)
+        return ev
+
+    def end(self, t: float, now: float, reason: str = '') -> Event | None:
+        """End the running episode from outside (``reset``: the service, or the link was
+        lost); None if none runs."""
+        if self.state != 'run':
+            return None
+        ev = self._end('reset', t, now)
+        if reason:
+            ev.values['reason'] = reason
+        return ev

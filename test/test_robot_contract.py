@@ -1,0 +1,257 @@
+"""The robot interface contract, run against the simulator and against the bridge + emulator.
+
+The modules must not be able to tell the two apart: the same topics, types, QoS, frames and
+rates (in the clock's time), the same command handling and safety, and the same reward and
+episode semantics (+1 and ``reached`` at the destination, -0.1 once per new contact, ``timeout``
+after ``episode.time_limit``, one reward per tick of an episode, the next ``start`` after).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TwistStamped, Vector3Stamped
+from nav_msgs.msg import Odometry
+import numpy as np
+import pytest
+from robot_util import Robot
+from ros_util import Probe
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState, LaserScan
+from visualization_msgs.msg import MarkerArray
+
+from cr_sim import conversions as conv
+
+pytestmark = pytest.mark.ros
+
+SPEED = 5.0          # clock seconds per wall second
+TICK = 0.05          # config/sim.yaml episode.dt
+TIME_LIMIT = 20.0    # episode.time_limit for these tests [s]
+STREAMS = {'/clock': Clock, 'ir': LaserScan, 'camera': JointState, 'wheels': JointState,
+           'reward': Vector3Stamped, 'odom': Odometry, 'markers': MarkerArray}
+RATES = {'/clock': 20.0, 'ir': 20.0, 'camera': 20.0, 'wheels': 20.0, 'reward': 20.0,
+         'odom': 20.0, 'markers': 10.0}
+
+
+def stamp(msg) -> float:
+    if isinstance(msg, Clock):
+        return conv.from_time(msg.clock)
+    if isinstance(msg, MarkerArray):
+        return conv.from_time(msg.markers[0].header.stamp)
+    return conv.from_time(msg.header.stamp)
+
+
+def events(probe) -> list[tuple[float, str, dict]]:
+    return [conv.episode_from_msg(m) for m in probe.msgs['episode']]
+
+
+@pytest.fixture(scope='module', params=['sim', 'bridge'])
+def robot(request):
+    p = Probe(f'contract_{request.param}')
+    r = Robot(request.param, SPEED, '-p', f'episode.time_limit:={TIME_LIMIT}')
+    p.listen(MarkerArray, 'arena', latched=True)
+    p.listen(DiagnosticArray, 'episode', latched=True, depth=100)
+    for topic, msg_type in STREAMS.items():
+        p.listen(msg_type, topic, depth=1000)
+    p.pub = p.node.create_publisher(TwistStamped, 'cmd_vel', 10)
+    ok = p.spin_until(lambda: len(p.msgs['/clock']) > 5 and events(p), 40)
+    if not ok:
+        out = r.close()
+        p.close()
+        pytest.fail(f'{request.param}: no clock / episode start:\n{out}')
+    yield r, p
+    p.close()
+    out = r.close()
+    assert 'Traceback' not in out, out
+
+
+def drive(p, v: float, w: float, seconds: float, until=None) -> bool:
+    """Publish (v, w) every 50 ms wall for ``seconds`` (or until ``until()``)."""
+    msg = TwistStamped()
+    msg.twist.linear.x, msg.twist.angular.z = v, w
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if until is not None and until():
+            return True
+        p.pub.publish(msg)
+        p.spin_for(0.03)
+    return until is not None and until()
+
+
+def heading_controller(p, reverse_away: bool = False):
+    """(v, w) toward the destination by its camera bearing (NaN: turn in place)."""
+    cam = p.msgs['camera'][-1]
+    b = dict(zip(cam.name, cam.position))['destination']
+    if math.isnan(b):
+        return 0.0, 1.5
+    return (0.4 if abs(b) < 0.6 else 0.0), 3.0 * b
+
+
+def test_reaching_the_destination_gives_plus_one_and_ends_the_episode(robot):
+    """Episode 1 starts at A (the simulator's start; the emulator's robot stands there)."""
+    _, p = robot
+    t0, event, values = events(p)[-1]
+    assert (event, values['episode']) == ('start', '1'), events(p)
+
+    def reached() -> bool:
+        return any(e == 'reached' for _, e, _ in events(p))
+
+    deadline = time.monotonic() + 30.0
+    while not reached() and time.monotonic() < deadline:
+        v, w = heading_controller(p)
+        drive(p, v, w, 0.05)
+    assert reached(), 'the destination was not reached'
+    t_end, _, values = next(e for e in events(p) if e[1] == 'reached')
+    assert int(values['episode']) == 1
+    p.spin_for(0.3)
+    rewards = _episode_rewards(p, 1)
+    goal = [(t, r) for t, r, _ in rewards if r >= 1.0 - 0.11]
+    assert len(goal) == 1 and goal[0][0] == pytest.approx(t_end, abs=1e-6)
+    assert goal[0][1] in (pytest.approx(1.0), pytest.approx(0.9)), 'reward_goal (+ a contact)'
+    assert float(values['episode_return']) == pytest.approx(sum(r for _, r, _ in rewards))
+    assert rewards[-1][2] == pytest.approx(float(values['episode_return']))
+    assert max(t for t, _, _ in rewards) == pytest.approx(t_end, abs=1e-6), 'no reward after'
+    # the next episode starts after the end (the sim at its start, the bridge after a wander)
+    assert p.spin_until(lambda: events(p)[-1][1] == 'start', 20), events(p)[-3:]
+    t_next, _, v2 = events(p)[-1]
+    assert int(v2['episode']) == 2 and t_next > t_end
+
+
+def test_topics_types_frames_and_rates(robot):
+    _, p = robot
+    for topic in STREAMS:
+        p.msgs[topic].clear()
+    p.spin_for(2.0)
+    for topic, rate in RATES.items():
+        stamps = [stamp(m) for m in p.msgs[topic]]
+        assert len(stamps) > 10, topic
+        assert all(b > a for a, b in zip(stamps, stamps[1:])), f'{topic}: stamps increase'
+        measured = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+        if topic == 'reward':       # only within episodes (the bridge wanders between them)
+            measured = 1.0 / float(np.median(np.diff(stamps)))
+        assert measured == pytest.approx(rate, rel=0.15), f'{topic}: {measured:.1f} Hz'
+        if topic in ('/clock', 'ir', 'reward'):
+            steps = np.diff(stamps)
+            assert np.allclose(steps[steps < 0.075], TICK, atol=2e-3), f'{topic}: 50 ms grid'
+    clock = [stamp(m) for m in p.msgs['/clock']]
+    assert clock[-1] - clock[0] > 0.6 * SPEED * 2.0, 'the clock runs at the speed factor'
+    scan = p.msgs['ir'][-1]
+    assert scan.header.frame_id == 'base_link' and len(scan.ranges) == 7
+    assert scan.angle_min == pytest.approx(-math.pi / 2) and scan.range_max == pytest.approx(0.5)
+    assert all(0.0 <= r <= scan.range_max for r in scan.ranges)
+    cam = p.msgs['camera'][-1]
+    assert cam.header.frame_id == 'base_link'
+    assert list(cam.name) == ['destination', 'L1', 'L2', 'L3', 'L4']
+    assert all(math.isnan(b) or -math.pi <= b <= math.pi for b in cam.position)
+    wheels = p.msgs['wheels'][-1]
+    assert list(wheels.name) == ['left_wheel', 'right_wheel'] and len(wheels.velocity) == 2
+    odom = p.msgs['odom'][-1]
+    assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
+    assert abs(odom.pose.pose.position.x) < 1.5 and abs(odom.pose.pose.position.y) < 1.5
+    starts = [int(v['episode']) for _, e, v in events(p) if e == 'start']
+    assert starts == list(range(1, len(starts) + 1)), 'episodes are numbered 1, 2, ...'
+    last = [m for m in p.msgs['reward'] if stamp(m) >= events(p)[-1][0]]
+    assert all(m.vector.z == starts[-1] for m in last), 'reward.z is the episode index'
+    assert p.spin_until(lambda: p.msgs['arena'], 5), 'arena markers are latched'
+
+
+def test_commands_drive_nan_never_moves_and_wheels_are_clamped(robot):
+    _, p = robot
+
+    def pose():
+        o = p.msgs['odom'][-1].pose.pose
+        return np.array([o.position.x, o.position.y])
+
+    p0 = pose()
+    # A faces the goal: a little back, no contact
+    assert drive(p, -0.1, 0.0, 3.0, until=lambda: np.hypot(*(pose() - p0)) > 0.05), \
+        'a command moves the robot'
+    drive(p, 0.0, 0.0, 0.3)
+    p1 = pose()
+    drive(p, float('nan'), 0.0, 0.5)
+    assert np.allclose(p1, pose(), atol=2e-3), 'a NaN command must not move the robot'
+    n = len(p.msgs['wheels'])
+
+    def spun() -> bool:
+        return any(max(abs(v) for v in m.velocity) > 1.0 for m in p.msgs['wheels'][n:])
+
+    drive(p, 0.0, 40.0, 5.0, until=spun)     # spin far over the wheel limit
+    drive(p, 0.0, 0.0, 0.3)
+    speeds = [max(abs(v) for v in m.velocity) for m in p.msgs['wheels'][n:]]
+    assert max(speeds) <= 1.3 + 1e-3, f'wheel speed {max(speeds)} over the limit'
+    assert max(speeds) > 1.0, 'the spin command was executed (clamped)'
+
+
+def _episode_rewards(p, episode: int) -> list[tuple[float, float, float]]:
+    return [(stamp(m), m.vector.x, m.vector.y) for m in p.msgs['reward']
+            if int(m.vector.z) == episode]
+
+
+def test_an_idle_episode_times_out_with_one_reward_per_tick(robot):
+    _, p = robot
+    n = len(events(p))
+    assert p.spin_until(lambda: len(events(p)) > n and events(p)[-1][1] == 'start',
+                        TIME_LIMIT / SPEED * 4 + 10), 'a fresh episode'
+    t0, event, values = events(p)[-1]
+    ep = int(values['episode'])
+    assert p.spin_until(lambda: events(p)[-1][1] == 'timeout', TIME_LIMIT / SPEED * 4 + 10)
+    t_end, _, v = events(p)[-1]
+    assert int(v['episode']) == ep
+    assert t_end - t0 == pytest.approx(TIME_LIMIT, abs=1e-3)
+    assert float(v['duration']) == pytest.approx(TIME_LIMIT, abs=1e-3)
+    p.spin_for(0.2)
+    rewards = _episode_rewards(p, ep)
+    stamps = [t for t, _, _ in rewards]
+    n = round(TIME_LIMIT / TICK)
+    if robot[0].kind == 'sim':
+        assert len(rewards) == n, 'one reward per tick'
+    else:   # one per frame received: a frame lost on the line (counted) has none
+        assert n * 0.98 <= len(rewards) <= n, 'one reward per tick'
+    assert len(set(stamps)) == len(stamps)
+    assert stamps[0] == pytest.approx(t0 + TICK, abs=1e-6) and stamps[-1] == pytest.approx(t_end)
+    assert all(r == 0.0 for _, r, _ in rewards), 'standing still collides with nothing'
+
+
+def test_a_collision_costs_once_while_pressed(robot):
+    _, p = robot
+    n = len(events(p))
+    assert p.spin_until(lambda: len(events(p)) > n and events(p)[-1][1] == 'start',
+                        TIME_LIMIT / SPEED * 4 + 10), 'a fresh episode'
+    ep = int(events(p)[-1][2]['episode'])
+
+    # face the destination, then back away from it into whatever is behind (a wall)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        v, w = heading_controller(p)
+        if abs(w) < 0.1 and v > 0:
+            break
+        drive(p, 0.0, w, 0.05)
+
+    def hit() -> bool:
+        return any(r < 0 for _, r, _ in _episode_rewards(p, ep))
+
+    assert drive(p, -0.8, 0.0, 6.0 / SPEED, until=hit), 'no collision backing away'
+    drive(p, -0.8, 0.0, 1.0)                  # keep pressing: 5 s of clock
+    hits = [r for _, r, _ in _episode_rewards(p, ep) if r < 0]
+    assert hits == [pytest.approx(-0.1)], hits
+    touching = [m for m in p.msgs['wheels'][-40:]]
+    assert all(abs(sum(m.velocity)) < 0.8 for m in touching[-10:]), 'pressed: it does not move'
+
+
+def test_qos_and_the_reset_service(robot):
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+    _, p = robot
+    latched = {'/episode', '/arena'}
+    for topic in ['/clock', '/ir', '/camera', '/wheels', '/reward', '/odom', '/markers',
+                  *latched]:
+        infos = p.node.get_publishers_info_by_topic(topic)
+        assert len(infos) == 1, topic
+        qos = infos[0].qos_profile
+        assert qos.reliability == ReliabilityPolicy.RELIABLE, topic
+        assert qos.durability == (DurabilityPolicy.TRANSIENT_LOCAL if topic in latched
+                                  else DurabilityPolicy.VOLATILE), topic
+    types = dict(p.node.get_topic_names_and_types())
+    assert types['/cmd_vel'] == ['geometry_msgs/msg/TwistStamped']
+    assert ('/reset', ['std_srvs/srv/Trigger']) in p.node.get_service_names_and_types()
