@@ -109,6 +109,9 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     selector, buffer = agent.selector, agent.buffer
     dt = sim.params.episode.dt
     every = [max(1, int(round(d.module.period / dt))) for d in deciders]
+    # the modules due at tick k are schedule[k % cycle] (cycle: the periods' common multiple)
+    cycle = math.lcm(*every)
+    schedule = [[d for d, n in zip(deciders, every) if k % n == 0] for k in range(cycle)]
     sim.reset(start=start, heading=heading)
     for d in deciders:
         d.reset()
@@ -117,9 +120,9 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     u_exec = np.zeros(2)
     k = 0
     while True:
-        t = k * dt
-        due = [d for d, n in zip(deciders, every) if k % n == 0]
+        due = schedule[k % cycle]
         if due:
+            t = k * dt
             percept = Percept.from_observation(t, sim.observe())
             proposals = [d.decide(percept) for d in due]
             for p in proposals:
@@ -131,9 +134,12 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
                     buffer.add_action(cmd.t, cmd.u, names[cmd.module])
         res = sim.step(u_exec)
         k += 1
-        buffer.add_reward(k * dt, res.reward)          # stamped at the end of the tick
-        for d in localizing:
-            d.on_wheels(sim.wheels[0], sim.wheels[1], dt)
+        if res.reward != 0.0:
+            buffer.add_reward(k * dt, res.reward)      # stamped at the end of the tick
+        if localizing:
+            v_left, v_right = sim.wheel_speeds
+            for d in localizing:
+                d.on_wheels(v_left, v_right, dt)
         if res.done:
             break
     memory = buffer.cut(0.0, k * dt, res.reached, agent.memory)

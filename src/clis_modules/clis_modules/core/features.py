@@ -134,5 +134,28 @@ class RbfGrid:
         return b
 
     def __call__(self, x: ArrayLike) -> np.ndarray:
-        """Features of one input ``x`` (shape (D,), NaN = not visible) -> shape (n,)."""
-        return self.batch(np.asarray(x, dtype=np.float64).reshape(1, self.dim))[0]
+        """Features of one input ``x`` (shape (D,), NaN = not visible) -> shape (n,).
+
+        The same arithmetic as :meth:`batch` for one row (bit-identical results), without its
+        per-row bookkeeping: the hot path of every innate and view decision.
+        """
+        xs = np.asarray(x, dtype=np.float64).reshape(self.dim).tolist()
+        b = np.zeros(self.n)
+        if any(math.isnan(v) for v in xs):
+            b[-1] = 1.0                                  # not visible: b = e_n
+            return b
+        out = None
+        for k, c in enumerate(self.centers):
+            d = xs[k] - c                                                # (n_k,)
+            if self.periodic[k]:
+                d = wrap_angles(d)
+            q = (d * d) / self.phi[k]
+            if self.normalize:
+                q -= q.min()
+            # b_j(x) = exp(-||x - x_j||^2 / phi), one dimension at a time (III-B, III-C)
+            g = np.exp(-q)
+            out = g if out is None else (out[:, None] * g[None, :]).reshape(-1)
+        if self.normalize:
+            out /= out.sum()
+        b[:-1] = out
+        return b
