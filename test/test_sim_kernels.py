@@ -6,7 +6,12 @@ from __future__ import annotations
 import math
 
 from clis_modules.core.features import RbfGrid, uniform_centers
-from clis_modules.core.localization import MarkovLocalizer, _log_likelihood
+from clis_modules.core.localization import (
+    MarkovLocalizer,
+    _blur,
+    _gaussian_weights,
+    _log_likelihood,
+)
 from clis_modules.core.modules import arena_map, load_module_params
 from cr_sim.core import kernels
 from cr_sim.core.arena import load_arena
@@ -15,6 +20,7 @@ from cr_sim.core.robot import clamp_wheels, integrate_arc, twist_to_wheels, whee
 from cr_sim.core.sim import load_sim_params
 import numpy as np
 import pytest
+from scipy import ndimage
 
 
 @pytest.fixture(scope='module')
@@ -161,6 +167,19 @@ def test_localization_shift_kernel_is_the_reference_bit_for_bit(localizer):
             (5.0, -4.0, 20.0)]:
         np.testing.assert_array_equal(localizer._shift(p, dx, dy, dth),
                                       _shift_reference(localizer, p, dx, dy, dth))
+
+
+def test_localization_blur_is_scipy_gaussian_filter_bit_for_bit():
+    rng = np.random.default_rng(4)
+    for trial in range(150):
+        shape = (12, 20, 20) if trial < 80 else tuple(int(v) for v in rng.integers(1, 16, 3))
+        p = rng.random(shape)
+        s_th, s_xy = (float(rng.choice([0.0, rng.uniform(0.01, 3.0), rng.uniform(3.0, 12.0)],
+                                       p=[0.1, 0.8, 0.1])) for _ in range(2))
+        want = ndimage.gaussian_filter(p, sigma=(s_th, s_xy, s_xy), truncate=3.0,
+                                       mode=('wrap', 'reflect', 'reflect'))
+        w = _gaussian_weights(s_xy, 3.0)
+        np.testing.assert_array_equal(_blur(p, _gaussian_weights(s_th, 3.0), w, w), want)
 
 
 def test_localization_likelihood_is_the_von_mises_sum(localizer):

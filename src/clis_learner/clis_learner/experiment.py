@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job
+from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job, warm_up
 
 #: Where the runs execute (``--backend``).
 BACKENDS = ('process', 'ray')
@@ -249,6 +249,8 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
     progress = Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
                         quiet=quiet)
     ctx = mp.get_context('fork' if sys.platform.startswith('linux') else 'spawn')
+    if ctx.get_start_method() == 'fork':
+        warm_up(todo[0])          # compiled kernels loaded once, inherited by every worker
     manager = ctx.Manager()
     q = manager.Queue()
     with ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1) as pool:

@@ -22,7 +22,8 @@ expressed in the robot frame at the start of the interval:
 2. the heading axis is rolled by ``dtheta`` (periodic, linear weights between bins);
 3. Gaussian noise: a blur of standard deviation ``trans_noise * |d| + trans_noise_min`` in x and
    y (reflecting at the walls) and ``rot_noise * |dtheta| + rot_noise_min`` in heading
-   (periodic) -- :func:`scipy.ndimage.gaussian_filter`. The ``*_min`` terms also stand for the
+   (periodic) -- :func:`scipy.ndimage.gaussian_filter`'s arithmetic, compiled (:func:`_blur`,
+   bit-identical: tested). The ``*_min`` terms also stand for the
    spread of the true pose inside a cell; they are added per call, so call ``predict`` once per
    place-module period (not once per simulator tick).
 
@@ -58,7 +59,6 @@ from cr_sim.core.params import dataclass, param
 from cr_sim.core.robot import integrate_arc, wheels_to_twist
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import ndimage
 
 __all__ = ['LocalizationParams', 'MarkovLocalizer']
 
@@ -211,8 +211,10 @@ class MarkovLocalizer:
         s_xy = (prm.trans_noise * math.hypot(dx, dy) + prm.trans_noise_min) / self.cell
         s_th = (prm.rot_noise * abs(dtheta) + math.radians(prm.rot_noise_min_deg)) / self.bin
         if s_xy > 0.0 or s_th > 0.0:
-            p = ndimage.gaussian_filter(p, sigma=(s_th, s_xy, s_xy),
-                                        mode=('wrap', 'reflect', 'reflect'), truncate=3.0)
+            # = scipy.ndimage.gaussian_filter(p, (s_th, s_xy, s_xy), truncate=3.0,
+            #                                 mode=('wrap', 'reflect', 'reflect'))
+            w_xy = _gaussian_weights(s_xy, 3.0)
+            p = _blur(p, _gaussian_weights(s_th, 3.0), w_xy, w_xy)
         self._p = self._normalised(p * self._free)
 
     def predict_wheels(self, wheels: ArrayLike, dt: float, wheel_base: float) -> None:
@@ -272,12 +274,12 @@ class MarkovLocalizer:
         # at every sub-pose x' of every cell: (S, K, nx, ny), relative to the best one
         loglik = _log_likelihood(np.cos(zs), np.sin(zs), seen, self.kappa, self._cos_phi,
                                  self._sin_phi, self._cos_th, self._sin_th)
-        loglik -= loglik.max()
-        np.maximum(loglik, _LOG_LIK_MIN, out=loglik)       # no denormals: exp is 3x faster
+        # minus the best, clipped at _LOG_LIK_MIN (no denormals: exp is 3x faster)
+        _shift_clip(loglik.reshape(-1), loglik.max(), _LOG_LIK_MIN)
         np.exp(loglik, out=loglik)
         # Pr(s | cell) = mean over its sub-poses (the pose is anywhere inside the cell); the
         # constant 1/S cancels in the normalisation
-        lik = loglik.sum(axis=0)
+        lik = _sum_rows(loglik.reshape(self._n_sub, -1)).reshape(self.shape)
         # b(x) <- eta Pr(s | x) b(x)
         p = lik * self._p
         total = p.sum()
@@ -298,6 +300,76 @@ class MarkovLocalizer:
 
 
 # ------------------------------------------------------------------ compiled kernels
+
+def _gaussian_weights(sigma: float, truncate: float) -> np.ndarray:
+    """Normalised Gaussian weights of std ``sigma`` [cells] over ``+-int(truncate sigma + 1/2)``
+    (``scipy.ndimage``'s kernel, its arithmetic), shape (2 r + 1,); empty when ``sigma`` is
+    (nearly) 0: that axis is not blurred."""
+    if not sigma > 1e-15:
+        return np.zeros(0)
+    radius = int(truncate * float(sigma) + 0.5)
+    x = np.arange(-radius, radius + 1)
+    phi = np.exp(-0.5 / (sigma * sigma) * x ** 2)
+    return phi / phi.sum()
+
+
+@njit
+def _extend(idx: int, n: int, wrap: bool) -> int:
+    """Index in ``[0, n)`` of position ``idx`` of a line extended periodically (``wrap``) or
+    mirrored (``reflect``: d c b a | a b c d | d c b a)."""
+    if wrap:
+        return idx % n
+    idx %= 2 * n
+    return 2 * n - 1 - idx if idx >= n else idx
+
+
+@njit
+def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.ndarray:
+    """Separable Gaussian blur of ``p`` (K, nx, ny), C-contiguous: axis 0 periodic (``wrap``),
+    axes 1 and 2 mirrored at the walls (``reflect``), one axis after the other, each with its
+    symmetric weights ``w`` (2 r + 1,) (empty: the axis is skipped). A new array.
+
+    ``scipy.ndimage.gaussian_filter``'s arithmetic (its correlate1d of a symmetric kernel:
+    ``out = x[0] w[r] + sum_{j = -r .. -1} (x[j] + x[-j]) w[r + j]``, in that order), so the
+    results are the same bit for bit; the loops run over whole contiguous rows.
+    """
+    n_k, nx, ny = p.shape
+    src = p.copy()
+    dst = np.empty_like(p)
+    if w0.size:
+        r = w0.size // 2
+        for k in range(n_k):
+            dst[k] = src[k] * w0[r]
+            for j in range(-r, 0):
+                lo, hi = _extend(k + j, n_k, True), _extend(k - j, n_k, True)
+                dst[k] += (src[lo] + src[hi]) * w0[r + j]
+        src, dst = dst, src
+    if w1.size:
+        r = w1.size // 2
+        for k in range(n_k):
+            for i in range(nx):
+                for c in range(ny):
+                    dst[k, i, c] = src[k, i, c] * w1[r]
+                for j in range(-r, 0):
+                    lo, hi = _extend(i + j, nx, False), _extend(i - j, nx, False)
+                    for c in range(ny):
+                        dst[k, i, c] += (src[k, lo, c] + src[k, hi, c]) * w1[r + j]
+        src, dst = dst, src
+    if w2.size:
+        r = w2.size // 2
+        line = np.empty(ny + 2 * r)
+        for k in range(n_k):
+            for i in range(nx):
+                for e in range(ny + 2 * r):
+                    line[e] = src[k, i, _extend(e - r, ny, False)]
+                for c in range(ny):
+                    dst[k, i, c] = line[c + r] * w2[r]
+                for j in range(-r, 0):
+                    for c in range(ny):
+                        dst[k, i, c] += (line[c + r + j] + line[c + r - j]) * w2[r + j]
+        src, dst = dst, src
+    return src
+
 
 @njit
 def _shift_kernel(p: np.ndarray, ix: np.ndarray, fx: np.ndarray, iy: np.ndarray,
@@ -399,4 +471,21 @@ def _log_likelihood(cos_z: np.ndarray, sin_z: np.ndarray, seen: np.ndarray, kapp
                     for j in range(ny):
                         # kappa cos(A + theta) = C cos theta - S sin theta
                         out[q * n_t + t, k, i, j] = cc[q, i, j] * ct - ss[q, i, j] * st
+    return out
+
+
+@njit
+def _shift_clip(a: np.ndarray, best: float, low: float) -> None:
+    """``a <- max(a - best, low)`` in place, ``a`` (N,)."""
+    for i in range(a.shape[0]):
+        a[i] = max(a[i] - best, low)
+
+
+@njit
+def _sum_rows(a: np.ndarray) -> np.ndarray:
+    """``a.sum(axis=0)`` of ``a`` (S, N): the rows added in order."""
+    out = a[0].copy()
+    for s in range(1, a.shape[0]):
+        for i in range(a.shape[1]):
+            out[i] += a[s, i]
     return out

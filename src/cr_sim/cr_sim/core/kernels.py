@@ -24,7 +24,7 @@ import numpy as np
 from cr_sim.core.geometry import TWO_PI, disc_gap, wrap_angle
 from cr_sim.core.robot import clamp_wheel, integrate_arc
 
-__all__ = ['HAVE_NUMBA', 'njit', 'move', 'scan']
+__all__ = ['HAVE_NUMBA', 'njit', 'move', 'scan', 'odometry_step']
 
 try:  # pragma: no cover - exercised by whichever branch is installed
     import numba
@@ -46,6 +46,15 @@ _disc_gap = njit(disc_gap)
 _arc = njit(integrate_arc)
 _wrap = njit(wrap_angle)
 _clamp = njit(clamp_wheel)
+
+
+@njit
+def odometry_step(x: float, y: float, th: float, v_left: float, v_right: float,
+                  wheel_base: float, dt: float) -> tuple[float, float, float]:
+    """Pose ``(x, y, th)`` after the wheels ``(v_left, v_right)`` [m/s] for ``dt`` [s]:
+    :func:`~cr_sim.core.robot.wheels_to_twist` then :func:`~cr_sim.core.robot.integrate_arc`
+    (theta not wrapped)."""
+    return _arc(x, y, th, 0.5 * (v_left + v_right), (v_right - v_left) / wheel_base, dt)
 
 
 @njit
