@@ -84,8 +84,8 @@ def main() -> int:
             {'measure': 'CRNavEnv steps/s, step() alone', 'value': f'{best["env_fixed"]:,.0f}',
              'goal': ''}]
     for n in ROBOTS:
-        fast = measure(f'native_{n}', lambda: vector(CRNavVectorEnv(n), args.seconds))
-        sync = measure(f'sync_{n}', lambda: vector(
+        fast = measure(f'native_{n}', lambda n=n: vector(CRNavVectorEnv(n), args.seconds))
+        sync = measure(f'sync_{n}', lambda n=n: vector(
             SyncVectorEnv([lambda: CRNavEnv(start='random') for _ in range(n)]),
             args.seconds))
         print(f'{n:4d} robots: CRNavVectorEnv {fast:,.0f}, SyncVectorEnv {sync:,.0f} '
