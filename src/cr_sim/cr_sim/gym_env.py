@@ -12,10 +12,25 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 import numpy as np
 
+from cr_sim.core import kernels
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.sim import Observation, SimParams, Simulator, load_sim_params
 
 __all__ = ['CRNavEnv', 'CRNavVectorEnv']
+
+
+def _layout(ir: np.ndarray, bearings: np.ndarray, out: np.ndarray, low: np.ndarray,
+            high: np.ndarray) -> None:
+    """Observation vector(s) into ``out`` (..., n_ir + 2 T) float32 from the IR readings
+    (..., n_ir) and the bearings of the destination then the landmarks (..., T), NaN = not
+    seen: the readings, then per target (visible flag, bearing or 0), clipped to the bounds."""
+    n = ir.shape[-1]
+    out[..., :n] = ir
+    seen = ~np.isnan(bearings)
+    out[..., n::2] = seen
+    out[..., n + 1::2] = np.where(seen, bearings, 0.0)
+    # float32 rounding may put a bearing of +-pi a hair outside the float32 bounds
+    np.clip(out, low, high, out=out)
 
 
 class _WheelBox(spaces.Box):
@@ -134,16 +149,10 @@ class CRNavEnv(gym.Env):
         """The observation vector (class docstring) of ``obs``, into ``out`` if given."""
         if out is None:
             out = np.empty(self.observation_space.shape, dtype=np.float32)
-        n = self._n_ir
-        out[:n] = obs.ir
         bearings = self._bearings
         bearings[0] = obs.dest_bearing
         bearings[1:] = obs.landmark_bearings
-        seen = ~np.isnan(bearings)
-        out[n::2] = seen
-        out[n + 1::2] = np.where(seen, bearings, 0.0)
-        # float32 rounding may put a bearing of +-pi a hair outside the float32 bounds
-        np.clip(out, self._low, self._high, out=out)
+        _layout(obs.ir, bearings, out, self._low, self._high)
         return out
 
     def _info(self, collision: bool = False) -> dict[str, Any]:
@@ -175,7 +184,8 @@ class CRNavVectorEnv(VectorEnv):
     """``num_envs`` robots in one process, each in its own arena: a native ``gymnasium.vector``
     environment with the results of ``SyncVectorEnv([CRNavEnv] * num_envs)`` (same seeds, same
     actions -> same observations, rewards and ends; tested), without its per-robot wrapper
-    work: the robots' simulators step in one loop that writes into shared batch arrays.
+    work: the robots' simulators step in one loop, their sensors are computed in one compiled
+    call for all robots and laid out into shared batch arrays (:meth:`step`).
 
     Spaces: ``single_action_space`` / ``single_observation_space`` are those of
     :class:`CRNavEnv`; ``action_space`` (num_envs, 2) and ``observation_space``
@@ -204,7 +214,8 @@ class CRNavVectorEnv(VectorEnv):
                                for _ in range(self.num_envs - 1)]
         self.single_action_space = first.action_space
         self.single_observation_space = first.observation_space
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        batched = batch_space(self.single_action_space, self.num_envs)
+        self.action_space = _WheelBox(batched.low, batched.high, dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.render_mode = None
         self._obs = np.zeros(self.observation_space.shape, dtype=np.float32)
@@ -212,6 +223,14 @@ class CRNavVectorEnv(VectorEnv):
         self._terminations = np.zeros(self.num_envs, dtype=bool)
         self._truncations = np.zeros(self.num_envs, dtype=bool)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self._stepped = np.zeros(self.num_envs, dtype=bool)
+        n_ir, n_t = first._n_ir, len(first._bearings)
+        self._x, self._y, self._th = (np.zeros(self.num_envs) for _ in range(3))
+        self._noise = np.zeros((self.num_envs, n_ir + n_t))
+        self._ir = np.zeros((self.num_envs, n_ir))
+        self._bear = np.zeros((self.num_envs, n_t))
+        self._low, self._high = first._low, first._high
+        self._sims: list[Simulator] = []
 
     @property
     def poses(self) -> np.ndarray:
@@ -229,28 +248,53 @@ class CRNavVectorEnv(VectorEnv):
                 raise ValueError(f'{len(seeds)} seeds for num_envs = {self.num_envs}')
         for i, (env, s) in enumerate(zip(self.envs, seeds)):
             self._obs[i], _ = env.reset(seed=s, options=options)
+        self._sims = [env.sim for env in self.envs]       # a seed makes a new simulator
         self._terminations[:] = self._truncations[:] = self._autoreset[:] = False
         return self._obs.copy(), {}
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                           dict[str, Any]]:
-        """Step every robot with its row of ``actions`` (num_envs, 2) [m/s]."""
+        """Step every robot with its row of ``actions`` (num_envs, 2) [m/s].
+
+        Each robot's simulator steps (motion, contact, reward, episode end) and draws its
+        sensor noise as :meth:`Simulator.observe` would; then the sensors of all robots are
+        computed in one call (:func:`cr_sim.core.kernels.scan_many`, the same arithmetic) and
+        laid out in one batch.
+        """
         actions = np.asarray(actions)
         if actions.shape != self.action_space.shape:
             raise ValueError(f'actions must have shape {self.action_space.shape}, got '
                              f'{actions.shape}')
         obs, rewards = self._obs, self._rewards
         terminations, truncations = self._terminations, self._truncations
-        for i, env in enumerate(self.envs):
+        x, y, th, noise, stepped = self._x, self._y, self._th, self._noise, self._stepped
+        for i, sim in enumerate(self._sims):
             if self._autoreset[i]:
-                env._vector(env.sim.reset(start=env.start), obs[i])
+                env = self.envs[i]
+                env._vector(sim.reset(start=env.start), obs[i])
                 rewards[i] = 0.0
-                terminations[i] = truncations[i] = False
+                terminations[i] = truncations[i] = stepped[i] = False
                 continue
-            res = env.sim.step(actions[i], observe=True)
-            env._vector(res.obs, obs[i])
+            res = sim.step(actions[i])
             rewards[i] = res.reward
             terminations[i] = res.reached
             truncations[i] = res.timeout
+            noise[i] = sim._draw_noise()
+            x[i], y[i], th[i] = sim._x, sim._y, sim._th
+            stepped[i] = True
+        s = self._sims[0]
+        dx = s._targets_x[None, :] - x[:, None]
+        dy = s._targets_y[None, :] - y[:, None]
+        kernels.scan_many(x, y, th, s._ir_angles, s._targets_x, s._targets_y,
+                          np.arctan2(dy, dx), s._planes, s._n_tall, s._r, s._ir_range, noise,
+                          s._noisy, self._ir, self._bear)
+        if s._cam_range is not None:
+            self._bear[np.hypot(dx, dy) > s._cam_range] = np.nan
+        if stepped.all():
+            _layout(self._ir, self._bear, obs, self._low, self._high)
+        elif stepped.any():
+            rows = np.empty((int(stepped.sum()), obs.shape[1]), dtype=np.float32)
+            _layout(self._ir[stepped], self._bear[stepped], rows, self._low, self._high)
+            obs[stepped] = rows
         np.logical_or(terminations, truncations, out=self._autoreset)
         return obs.copy(), rewards.copy(), terminations.copy(), truncations.copy(), {}

@@ -24,7 +24,7 @@ import numpy as np
 from cr_sim.core.geometry import TWO_PI, disc_gap, wrap_angle
 from cr_sim.core.robot import clamp_wheel, integrate_arc
 
-__all__ = ['HAVE_NUMBA', 'njit', 'move', 'scan', 'odometry_step']
+__all__ = ['HAVE_NUMBA', 'njit', 'move', 'scan', 'scan_many', 'odometry_step']
 
 try:  # pragma: no cover - exercised by whichever branch is installed
     import numba
@@ -132,11 +132,34 @@ def scan(x: float, y: float, th: float, ir_angles: np.ndarray, targets_x: np.nda
         ``bearing - th + noise`` wrapped to (-pi, pi] (as :func:`geometry.wrap_angles`);
         NaN where a tall obstacle crosses the segment to the target.
     """
+    ir = np.empty(ir_angles.shape[0])
+    out = np.empty(targets_x.shape[0])
+    scan_into(x, y, th, ir_angles, targets_x, targets_y, bearing, planes, n_tall, radius,
+              ir_range, noise, noisy, ir, out)
+    return ir, out
+
+
+@njit
+def scan_many(x: np.ndarray, y: np.ndarray, th: np.ndarray, ir_angles: np.ndarray,
+              targets_x: np.ndarray, targets_y: np.ndarray, bearing: np.ndarray,
+              planes: np.ndarray, n_tall: int, radius: float, ir_range: float,
+              noise: np.ndarray, noisy: bool, ir: np.ndarray, out: np.ndarray) -> None:
+    """:func:`scan` of N robots at once (one arena): poses ``x, y, th`` (N,), ``bearing``
+    (N, T), ``noise`` (N, n + T); results into ``ir`` (N, n) and ``out`` (N, T)."""
+    for i in range(x.shape[0]):
+        scan_into(x[i], y[i], th[i], ir_angles, targets_x, targets_y, bearing[i], planes,
+                  n_tall, radius, ir_range, noise[i], noisy, ir[i], out[i])
+
+
+@njit
+def scan_into(x: float, y: float, th: float, ir_angles: np.ndarray, targets_x: np.ndarray,
+              targets_y: np.ndarray, bearing: np.ndarray, planes: np.ndarray, n_tall: int,
+              radius: float, ir_range: float, noise: np.ndarray, noisy: bool, ir: np.ndarray,
+              out: np.ndarray) -> None:
+    """:func:`scan` into given arrays ``ir`` (n,) and ``out`` (T,)."""
     n = ir_angles.shape[0]
     n_t = targets_x.shape[0]
     n_b = planes.shape[2]
-    ir = np.empty(n)
-    out = np.empty(n_t)
     for r in range(n + n_t):
         if r < n:
             a = ir_angles[r] + th
@@ -181,4 +204,3 @@ def scan(x: float, y: float, th: float, ir_angles: np.ndarray, targets_x: np.nda
             if m >= TWO_PI:
                 m = 0.0
             out[j] = math.pi - m
-    return ir, out

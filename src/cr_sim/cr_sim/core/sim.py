@@ -495,6 +495,13 @@ class Simulator:
                           self._tick, self.observe() if observe else None)
 
     # --------------------------------------------------------------------------- sensing
+    def _draw_noise(self) -> np.ndarray:
+        """The noise of one observation: IR beams then targets, shape (n_ir + T,) (zeros
+        without noise; nothing is drawn then)."""
+        if self._noisy:
+            return self._noise_rng.standard_normal(self._n_rays) * self._sigmas
+        return self._no_noise
+
     def observe(self) -> Observation:
         """The full sensor model at the current time (cached until the next step/reset).
 
@@ -505,8 +512,7 @@ class Simulator:
         if self._obs_tick == self._tick:
             return self._obs
         x, y, th = self._x, self._y, self._th
-        noise = (self._noise_rng.standard_normal(self._n_rays) * self._sigmas if self._noisy
-                 else self._no_noise)
+        noise = self._draw_noise()
         # ray casts of the IR beams (unit directions) and of the segments robot -> target
         # (t in [0, 1]) through the boxes; a target is hidden when its segment enters a tall
         # obstacle (the first boxes). Walls and short obstacles hide nothing.
