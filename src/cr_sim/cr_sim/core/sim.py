@@ -285,6 +285,7 @@ class Simulator:
         dest = arena.destination
         self._dest = (dest.x, dest.y)
         self._goal_r2 = dest.goal_radius ** 2
+        self._reward_goal, self._reward_collision = ep.reward_goal, ep.reward_collision
         self._tol = ep.contact_tolerance
 
         # sensor model: rows = IR beams then camera targets (destination, landmarks);
@@ -474,22 +475,22 @@ class Simulator:
         if self._done:
             raise RuntimeError('the episode is over (reached or timeout): call reset()')
         before = self._touching
-        if type(u) is np.ndarray and u.shape == (2,) and u.dtype.kind in 'fiu':
-            u_left, u_right = float(u[0]), float(u[1])     # the clamp is in the kernel
+        if type(u) is np.ndarray and u.shape == (2,) and u.dtype.kind == 'f':
+            u_left, u_right = u.tolist()                   # the clamp is in the kernel
         else:
-            u_left, u_right = clamp_wheels(u, self._vmax)  # any other shape: checked here
+            u_left, u_right = clamp_wheels(u, self._vmax)  # any other input: checked here
         self._move(u_left, u_right)
         self._k += 1
         self._tick += 1
-        ep = self.params.episode
         collision = self._touching and not before
-        reached = self._in_goal(self._x, self._y)
+        dx, dy = self._x - self._dest[0], self._y - self._dest[1]
+        reached = dx * dx + dy * dy <= self._goal_r2      # the centre within goal_radius
         timeout = (not reached) and self._k >= self._k_max
         reward = 0.0
         if collision:
-            reward += ep.reward_collision
+            reward += self._reward_collision
         if reached:
-            reward += ep.reward_goal
+            reward += self._reward_goal
         self._done = reached or timeout
         return StepResult(self._k * self._dt, reward, collision, reached, timeout, self,
                           self._tick, self.observe() if observe else None)
