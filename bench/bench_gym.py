@@ -8,7 +8,7 @@ A new user's loop: ``a = env.action_space.sample(); env.step(a)``, reset when an
 CPU time of the process is measured (``time.process_time``: the machine's other load counts
 less), the best of ``--repeats`` reported.
 
-    python bench/bench_gym.py [--seconds 2] [--repeats 3] [--json FILE]
+    python bench/bench_gym.py [--seconds 1] [--repeats 2] [--json FILE]
 """
 
 from __future__ import annotations
@@ -64,8 +64,8 @@ def vector(env, seconds: float) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument('--seconds', type=float, default=2.0, help='CPU seconds per measurement')
-    ap.add_argument('--repeats', type=int, default=3, help='repeats; the best is reported')
+    ap.add_argument('--seconds', type=float, default=1.0, help='CPU seconds per measurement')
+    ap.add_argument('--repeats', type=int, default=2, help='repeats; the best is reported')
     ap.add_argument('--json', metavar='FILE')
     args = ap.parse_args()
     best = {}

@@ -236,10 +236,19 @@ def main(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     todo = longest_first(todo)
     if todo and args.backend == 'ray':
-        from clis_learner.ray_backend import run_ray
-        run_ray(todo, args.workers, args.address,
-                Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
-                         quiet=args.quiet))
+        try:
+            from clis_learner.ray_backend import run_ray
+            run_ray(todo, args.workers, args.address,
+                    Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
+                             quiet=args.quiet))
+        except ImportError as exc:
+            print(f'clis experiment: --backend ray needs ray ({exc}); `make setup` installs '
+                  'it', file=sys.stderr)
+            return 2
+        except ConnectionError as exc:
+            print(f'clis experiment: cannot reach the Ray cluster at {args.address}: {exc} '
+                  '(is `ray start --head` running there? docs/scale.md)', file=sys.stderr)
+            return 1
     elif todo:
         _run_all(todo, args.workers, args.quiet)
     wall = time.monotonic() - t0

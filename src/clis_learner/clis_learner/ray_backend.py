@@ -45,6 +45,8 @@ LOCAL_ENV = {'RAY_USAGE_STATS_ENABLED': '0', 'RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER'
 MAX_RETRIES = 3
 #: Object store of a local instance [bytes] (results are small; Ray's minimum is 75 MiB).
 _OBJECT_STORE = 100 * 2**20
+#: Starts of a local instance before giving up (Ray gives its raylet 30 s to register).
+_START_ATTEMPTS = 3
 #: Environment of every worker (one BLAS thread: the parallelism is one run per CPU).
 _WORKER_ENV = {'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
 
@@ -63,10 +65,17 @@ def init_ray(address: str | None, workers: int) -> Any:
     import ray
     common = dict(include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False,
                   runtime_env={'env_vars': _WORKER_ENV})
-    if address is None:
-        ray.init(num_cpus=workers, object_store_memory=_OBJECT_STORE, **common)
-    else:
+    if address is not None:
         ray.init(address=address, **common)
+        return ray
+    for attempt in range(_START_ATTEMPTS):
+        try:
+            ray.init(num_cpus=workers, object_store_memory=_OBJECT_STORE, **common)
+            return ray
+        except Exception as exc:      # ray raises a bare Exception when its raylet is late
+            if 'timed out during startup' not in str(exc) or attempt + 1 == _START_ATTEMPTS:
+                raise
+            ray.shutdown()            # a loaded machine: Ray waits only 30 s; start again
     return ray
 
 
