@@ -151,3 +151,17 @@ def test_killed_ray_worker_is_retried_and_resume_crosses_backends(pool_run, tmp_
         assert (out / name).read_bytes() == (pool_run / name).read_bytes()
     assert _runs(out) == _runs(pool_run)
     assert not list((out / 'runs').glob('.*.tmp'))
+
+
+def test_longest_runs_start_first_and_the_order_is_stable(tmp_path):
+    from clis_learner.core.runner import JobSpec
+
+    def spec(i, condition, episodes=100):
+        return JobSpec(index=i, label=condition, condition=condition, overrides={},
+                       sim_overrides={}, seed=i, episodes=episodes, eval_episodes=1, arena=None,
+                       run_dir=str(tmp_path))
+
+    specs = [spec(0, 'innate'), spec(1, 'view'), spec(2, 'async'), spec(3, 'place'),
+             spec(4, 'async'), spec(5, 'innate', episodes=1000)]
+    order = [s.index for s in experiment.longest_first(specs)]
+    assert order == [5, 2, 4, 3, 0, 1]
