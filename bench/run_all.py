@@ -3,10 +3,16 @@
 Each ``bench/bench_*.py`` is run as ``python bench/bench_X.py --json FILE``; the collected
 results go to ``bench/results/latest.json`` and are rendered into ``docs/benchmarks.md``
 between the ``<!-- BENCH -->`` markers (the prose around them is kept).
+
+    python bench/run_all.py [--only bench_gym,bench_learning]
+
+``--only`` runs the named benchmarks and keeps the other benchmarks' rows of the table as they
+were (marked with the date they were measured).
 """
 
 from __future__ import annotations
 
+import argparse
 import datetime as dt
 import json
 import os
@@ -38,22 +44,49 @@ def machine() -> dict:
             'scipy': scipy.__version__, 'platform': platform.platform()}
 
 
-def render(results: dict) -> str:
+def render(results: dict, kept: list[str] | None = None, kept_note: str = '') -> str:
     m = results['machine']
     lines = [f'Measured {m["date"]} on {m["cpu"]} ({m["cores"]} cores), Python {m["python"]}, '
-             f'numpy {m["numpy"]}, scipy {m["scipy"]}, {m["platform"]}.', '',
+             f'numpy {m["numpy"]}, scipy {m["scipy"]}, {m["platform"]}.'
+             + (f' {kept_note}' if kept else ''), '',
              '| benchmark | measure | value | goal |', '|---|---|---|---|']
     for name, res in results['benchmarks'].items():
         for row in res.get('rows', []):
             lines.append(f'| {name} | {row["measure"]} | {row["value"]} | '
                          f'{row.get("goal", "")} |')
-    return '\n'.join(lines)
+    return '\n'.join(lines + (kept or []))
+
+
+def _old_rows(text: str, skip: set[str]) -> tuple[list[str], str]:
+    """Table rows of benchmarks not in ``skip`` from the current table, and its date."""
+    if START not in text or END not in text:
+        return [], ''
+    table = text.split(START, 1)[1].split(END, 1)[0]
+    date = ''
+    for line in table.splitlines():
+        if line.startswith('Measured '):
+            date = line.split(' on ', 1)[0][len('Measured '):]
+    rows = [line for line in table.splitlines()
+            if line.startswith('| bench_') and line.split('|')[1].strip() not in skip]
+    return rows, date
 
 
 def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument('--only', help='comma-separated benchmark names (default: all)')
+    args = ap.parse_args()
+    scripts = sorted(HERE.glob('bench_*.py'))
+    if args.only:
+        names = set(args.only.split(','))
+        unknown = names - {s.stem for s in scripts}
+        if unknown:
+            print(f'unknown benchmarks: {", ".join(sorted(unknown))}', file=sys.stderr)
+            return 2
+        scripts = [s for s in scripts if s.stem in names]
     results = {'machine': machine(), 'benchmarks': {}}
     failed = []
-    for script in sorted(HERE.glob('bench_*.py')):
+    for script in scripts:
         with tempfile.NamedTemporaryFile(suffix='.json', delete=False) as fh:
             out = Path(fh.name)
         print(f'== {script.name}', flush=True)
@@ -66,11 +99,15 @@ def main() -> int:
     (HERE / 'results').mkdir(exist_ok=True)
     (HERE / 'results' / 'latest.json').write_text(json.dumps(results, indent=2))
     text = DOC.read_text() if DOC.exists() else f'# Benchmarks\n\n{START}\n{END}\n'
+    kept, date = _old_rows(text, {s.stem for s in scripts}) if args.only else ([], '')
+    note = (f'The rows of {", ".join(sorted({r.split("|")[1].strip() for r in kept}))} are '
+            f'from {date}.' if kept else '')
+    table = render(results, kept, note)
     if START in text and END in text:
         head, rest = text.split(START, 1)
         _, tail = rest.split(END, 1)
-        DOC.write_text(f'{head}{START}\n{render(results)}\n{END}{tail}')
-    print(render(results))
+        DOC.write_text(f'{head}{START}\n{table}\n{END}{tail}')
+    print(table)
     if failed:
         print(f'benchmarks failed: {", ".join(failed)}', file=sys.stderr)
         return 1

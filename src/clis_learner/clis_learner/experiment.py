@@ -2,10 +2,13 @@
 
 Each (condition, seed) is one *run*: ``episodes`` learning episodes driven by the headless
 runner (:mod:`clis_learner.core.runner`), then evaluation episodes from each start point with
-learning off. Runs go to parallel worker processes; each run's results are written atomically to
-``OUT/runs/`` as soon as it finishes, so an interrupted experiment loses only the runs in flight
-and ``--resume`` continues it. At the end the runs are merged into ``episodes.csv``,
-``eval.csv``, ``summary.json`` and the figures (``fig3a.png`` ...).
+learning off. Runs go to parallel worker processes on this machine (``--backend process``) or
+to Ray tasks (``--backend ray``: a local Ray instance, or a cluster with ``--address``; see
+docs/scale.md); each run's results are written atomically to ``OUT/runs/`` as soon as it
+finishes, so an interrupted experiment loses only the runs in flight and ``--resume`` continues
+it, with either backend. A run's results are the same whichever backend ran it. At the end
+the runs are merged into ``episodes.csv``, ``eval.csv``, ``summary.json`` and the figures
+(``fig3a.png`` ...).
 
 A condition is a name (``innate``, ``view``, ``place``, ``sync``, ``async``) optionally followed
 by parameter overrides of ``config/clis.yaml``, ``@key=value`` each, so that variants run side by
@@ -28,7 +31,21 @@ from typing import Any
 
 import numpy as np
 
-from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job
+from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job, warm_up
+
+#: Where the runs execute (``--backend``).
+BACKENDS = ('process', 'ray')
+#: Relative cost of an episode per condition (measured: the place module's localization makes
+#: place, sync and async the slow ones), to start the longest runs first.
+_COST = {'innate': 1.0, 'view': 1.0, 'place': 2.0, 'sync': 2.0, 'async': 3.0}
+
+
+def longest_first(specs: list[JobSpec]) -> list[JobSpec]:
+    """``specs`` with the most expensive runs first (stable): on a few workers the last runs
+    then are short ones, and no worker waits idle for a long one to finish. The order does not
+    change any result (every run is seeded on its own)."""
+    return sorted(specs, key=lambda s: -_COST.get(s.condition, 1.0)
+                  * (s.episodes + 5 * s.eval_episodes))           # 5 starts A-E
 
 EPILOG = """\
 examples:
@@ -36,6 +53,8 @@ examples:
       --out results/paper
   clis experiment --conditions async,async@common.beta=200 --episodes 300 --seeds 3 --out /tmp/b
   clis experiment --figures-only --out results/paper          # redraw from saved runs
+  clis experiment --backend ray --conditions async --seeds 20 --out /tmp/r   # local Ray
+  clis experiment --backend ray --address HEAD:6379 --seeds 100 --out /tmp/r # a Ray cluster
 """
 
 
@@ -85,7 +104,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    metavar='KEY=VALUE',
                    help='override config/sim.yaml, e.g. sensors.ir_noise_sigma=0.0')
     p.add_argument('--workers', type=int, default=os.cpu_count() or 1,
-                   help='parallel processes (default: all cores)')
+                   help='parallel processes (default: all cores); with --backend ray and no '
+                        '--address, the CPUs of the local Ray instance')
+    p.add_argument('--backend', choices=BACKENDS, default='process',
+                   help="'process' (default): a pool of worker processes on this machine; "
+                        "'ray': Ray tasks (ray.init() starts a local instance bound to "
+                        '127.0.0.1; docs/scale.md)')
+    p.add_argument('--address', metavar='ADDR',
+                   help='with --backend ray: join the running Ray cluster at ADDR (host:port '
+                        'printed by `ray start --head`); its workers need this project '
+                        'installed (docs/scale.md)')
     p.add_argument('--resume', action='store_true', help='keep finished runs in OUT/runs')
     p.add_argument('--figures-only', action='store_true', help='only merge and draw')
     p.add_argument('--quiet', action='store_true', help='no progress output')
@@ -171,6 +199,9 @@ def main(args: argparse.Namespace) -> int:
         print('clis experiment: --episodes, --seeds, --workers and --block must be >= 1',
               file=sys.stderr)
         return 2
+    if args.address and args.backend != 'ray':
+        print('clis experiment: --address needs --backend ray', file=sys.stderr)
+        return 2
     if args.episodes < args.block:
         print(f'clis experiment: --episodes {args.episodes} is shorter than one block '
               f'(--block {args.block})', file=sys.stderr)
@@ -197,12 +228,28 @@ def main(args: argparse.Namespace) -> int:
         'seeds': list(range(args.first_seed, args.first_seed + args.seeds)),
         'eval_episodes': args.eval_episodes, 'sets': common, 'sim_sets': sim_overrides,
         'train_start': args.train_start, 'block': args.block,
-        'arena': str(args.arena) if args.arena else None}, indent=2))
+        'arena': str(args.arena) if args.arena else None, 'backend': args.backend,
+        'address': args.address}, indent=2))
     todo = [s for s in specs if not (args.resume or args.figures_only) or not s.done()]
     if args.figures_only:
         todo = []
     t0 = time.monotonic()
-    if todo:
+    todo = longest_first(todo)
+    if todo and args.backend == 'ray':
+        try:
+            from clis_learner.ray_backend import run_ray
+            run_ray(todo, args.workers, args.address,
+                    Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
+                             quiet=args.quiet))
+        except ImportError as exc:
+            print(f'clis experiment: --backend ray needs ray ({exc}); `make setup` installs '
+                  'it', file=sys.stderr)
+            return 2
+        except ConnectionError as exc:
+            print(f'clis experiment: cannot reach the Ray cluster at {args.address}: {exc} '
+                  '(is `ray start --head` running there? docs/scale.md)', file=sys.stderr)
+            return 1
+    elif todo:
         _run_all(todo, args.workers, args.quiet)
     wall = time.monotonic() - t0
     missing = [s for s in specs if not s.done()]
@@ -223,6 +270,8 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
     progress = Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
                         quiet=quiet)
     ctx = mp.get_context('fork' if sys.platform.startswith('linux') else 'spawn')
+    if ctx.get_start_method() == 'fork':
+        warm_up(todo[0])          # compiled kernels loaded once, inherited by every worker
     manager = ctx.Manager()
     q = manager.Queue()
     with ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1) as pool:

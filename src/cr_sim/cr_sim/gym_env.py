@@ -1,4 +1,5 @@
-"""Gymnasium environment around the pure simulator core (no ROS)."""
+"""Gymnasium environments around the pure simulator core (no ROS): :class:`CRNavEnv` (one
+robot) and :class:`CRNavVectorEnv` (many robots in one process, ``gymnasium.vector``)."""
 
 from __future__ import annotations
 
@@ -7,12 +8,43 @@ from typing import Any
 
 import gymnasium as gym
 from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
 import numpy as np
 
+from cr_sim.core import kernels
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.sim import Observation, SimParams, Simulator, load_sim_params
 
-__all__ = ['CRNavEnv']
+__all__ = ['CRNavEnv', 'CRNavVectorEnv']
+
+
+def _layout(ir: np.ndarray, bearings: np.ndarray, out: np.ndarray, low: np.ndarray,
+            high: np.ndarray) -> None:
+    """Observation vector(s) into ``out`` (..., n_ir + 2 T) float32 from the IR readings
+    (..., n_ir) and the bearings of the destination then the landmarks (..., T), NaN = not
+    seen: the readings, then per target (visible flag, bearing or 0), clipped to the bounds."""
+    n = ir.shape[-1]
+    out[..., :n] = ir
+    seen = ~np.isnan(bearings)
+    out[..., n::2] = seen
+    out[..., n + 1::2] = np.where(seen, bearings, 0.0)
+    # float32 rounding may put a bearing of +-pi a hair outside the float32 bounds
+    np.clip(out, low, high, out=out)
+
+
+class _WheelBox(spaces.Box):
+    """The action space: a bounded float32 :class:`gymnasium.spaces.Box` whose ``sample()``
+    draws exactly what ``Box.sample()`` draws (one ``uniform(low, high)`` call on
+    ``np_random``), without its per-call masks for unbounded coordinates (they cost more than
+    a simulator step)."""
+
+    def sample(self, mask: None = None, probability: None = None) -> np.ndarray:
+        """A uniform sample in ``[low, high]`` (``Box.sample`` for a bounded box)."""
+        if mask is not None or probability is not None:
+            return super().sample(mask, probability)     # raises as Box does
+        return self.np_random.uniform(low=self.low, high=self.high,
+                                      size=self.shape).astype(self.dtype)
 
 
 class CRNavEnv(gym.Env):
@@ -93,7 +125,7 @@ class CRNavEnv(gym.Env):
             robot_radius=self.params.robot.radius)
         self.start = start
         vmax = self.params.robot.v_wheel_max
-        self.action_space = spaces.Box(-vmax, vmax, shape=(2,), dtype=np.float32)
+        self.action_space = _WheelBox(-vmax, vmax, shape=(2,), dtype=np.float32)
         n_ir = len(self.params.sensors.ir_angles_deg)
         n_t = 1 + len(self.arena.landmarks)
         pi = np.float32(math.pi)
@@ -102,6 +134,8 @@ class CRNavEnv(gym.Env):
                                np.tile([1.0, pi], n_t)]).astype(np.float32)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._n_ir = n_ir
+        self._bearings = np.empty(n_t)
+        self._low, self._high = self.observation_space.low, self.observation_space.high
         self._sim: Simulator | None = None
 
     @property
@@ -111,15 +145,14 @@ class CRNavEnv(gym.Env):
             raise RuntimeError('call reset() first')
         return self._sim
 
-    def _vector(self, obs: Observation) -> np.ndarray:
-        bearings = np.concatenate([[obs.dest_bearing], obs.landmark_bearings])
-        seen = ~np.isnan(bearings)
-        out = np.empty(self.observation_space.shape, dtype=np.float32)
-        out[:self._n_ir] = obs.ir
-        out[self._n_ir::2] = seen
-        out[self._n_ir + 1::2] = np.where(seen, bearings, 0.0)
-        # float32 rounding may put a bearing of +-pi a hair outside the float32 bounds
-        np.clip(out, self.observation_space.low, self.observation_space.high, out=out)
+    def _vector(self, obs: Observation, out: np.ndarray | None = None) -> np.ndarray:
+        """The observation vector (class docstring) of ``obs``, into ``out`` if given."""
+        if out is None:
+            out = np.empty(self.observation_space.shape, dtype=np.float32)
+        bearings = self._bearings
+        bearings[0] = obs.dest_bearing
+        bearings[1:] = obs.landmark_bearings
+        _layout(obs.ir, bearings, out, self._low, self._high)
         return out
 
     def _info(self, collision: bool = False) -> dict[str, Any]:
@@ -145,3 +178,123 @@ class CRNavEnv(gym.Env):
         res = self.sim.step(action, observe=True)
         return (self._vector(res.obs), float(res.reward), bool(res.reached), bool(res.timeout),
                 self._info(res.collision))
+
+
+class CRNavVectorEnv(VectorEnv):
+    """``num_envs`` robots in one process, each in its own arena: a native ``gymnasium.vector``
+    environment with the results of ``SyncVectorEnv([CRNavEnv] * num_envs)`` (same seeds, same
+    actions -> same observations, rewards and ends; tested), without its per-robot wrapper
+    work: the robots' simulators step in one loop, their sensors are computed in one compiled
+    call for all robots and laid out into shared batch arrays (:meth:`step`).
+
+    Spaces: ``single_action_space`` / ``single_observation_space`` are those of
+    :class:`CRNavEnv`; ``action_space`` (num_envs, 2) and ``observation_space``
+    (num_envs, 17) their batches. Autoreset: ``next_step`` (gymnasium's default): the step after
+    a robot's episode ended resets that robot (reward 0, not terminated, not truncated).
+    ``reset(seed=s)`` seeds robot i with ``s + i`` (or a list of seeds). Infos are empty (the
+    ground-truth poses are :attr:`poses`).
+
+    Parameters
+    ----------
+    num_envs : int
+        Number of robots, >= 1.
+    arena, params, start
+        As for :class:`CRNavEnv` (shared by all robots).
+    """
+
+    metadata = {'render_modes': [], 'autoreset_mode': AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int, arena: Arena | None = None,
+                 params: SimParams | None = None, start: str = 'random') -> None:
+        if int(num_envs) < 1:
+            raise ValueError(f'num_envs must be >= 1, got {num_envs}')
+        self.num_envs = int(num_envs)
+        first = CRNavEnv(arena, params, start)
+        self.envs = [first] + [CRNavEnv(first.arena, first.params, start)
+                               for _ in range(self.num_envs - 1)]
+        self.single_action_space = first.action_space
+        self.single_observation_space = first.observation_space
+        batched = batch_space(self.single_action_space, self.num_envs)
+        self.action_space = _WheelBox(batched.low, batched.high, dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.render_mode = None
+        self._obs = np.zeros(self.observation_space.shape, dtype=np.float32)
+        self._rewards = np.zeros(self.num_envs)
+        self._terminations = np.zeros(self.num_envs, dtype=bool)
+        self._truncations = np.zeros(self.num_envs, dtype=bool)
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self._stepped = np.zeros(self.num_envs, dtype=bool)
+        n_ir, n_t = first._n_ir, len(first._bearings)
+        self._x, self._y, self._th = (np.zeros(self.num_envs) for _ in range(3))
+        self._noise = np.zeros((self.num_envs, n_ir + n_t))
+        self._ir = np.zeros((self.num_envs, n_ir))
+        self._bear = np.zeros((self.num_envs, n_t))
+        self._low, self._high = first._low, first._high
+        self._sims: list[Simulator] = []
+
+    @property
+    def poses(self) -> np.ndarray:
+        """Ground-truth ``(x, y, theta)`` of every robot, shape (num_envs, 3)."""
+        return np.stack([env.sim.pose for env in self.envs])
+
+    def reset(self, *, seed: int | list[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset every robot (``seed``: an int s seeds robot i with s + i, or one per robot)."""
+        if seed is None or isinstance(seed, int):
+            seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f'{len(seeds)} seeds for num_envs = {self.num_envs}')
+        for i, (env, s) in enumerate(zip(self.envs, seeds)):
+            self._obs[i], _ = env.reset(seed=s, options=options)
+        self._sims = [env.sim for env in self.envs]       # a seed makes a new simulator
+        self._terminations[:] = self._truncations[:] = self._autoreset[:] = False
+        return self._obs.copy(), {}
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                          dict[str, Any]]:
+        """Step every robot with its row of ``actions`` (num_envs, 2) [m/s].
+
+        Each robot's simulator steps (motion, contact, reward, episode end) and draws its
+        sensor noise as :meth:`Simulator.observe` would; then the sensors of all robots are
+        computed in one call (:func:`cr_sim.core.kernels.scan_many`, the same arithmetic) and
+        laid out in one batch.
+        """
+        actions = np.asarray(actions)
+        if actions.shape != self.action_space.shape:
+            raise ValueError(f'actions must have shape {self.action_space.shape}, got '
+                             f'{actions.shape}')
+        obs, rewards = self._obs, self._rewards
+        terminations, truncations = self._terminations, self._truncations
+        x, y, th, noise, stepped = self._x, self._y, self._th, self._noise, self._stepped
+        for i, sim in enumerate(self._sims):
+            if self._autoreset[i]:
+                env = self.envs[i]
+                env._vector(sim.reset(start=env.start), obs[i])
+                rewards[i] = 0.0
+                terminations[i] = truncations[i] = stepped[i] = False
+                continue
+            res = sim.step(actions[i])
+            rewards[i] = res.reward
+            terminations[i] = res.reached
+            truncations[i] = res.timeout
+            noise[i] = sim._draw_noise()
+            x[i], y[i], th[i] = sim._x, sim._y, sim._th
+            stepped[i] = True
+        s = self._sims[0]
+        dx = s._targets_x[None, :] - x[:, None]
+        dy = s._targets_y[None, :] - y[:, None]
+        kernels.scan_many(x, y, th, s._ir_angles, s._targets_x, s._targets_y,
+                          np.arctan2(dy, dx), s._planes, s._n_tall, s._r, s._ir_range, noise,
+                          s._noisy, self._ir, self._bear)
+        if s._cam_range is not None:
+            self._bear[np.hypot(dx, dy) > s._cam_range] = np.nan
+        if stepped.all():
+            _layout(self._ir, self._bear, obs, self._low, self._high)
+        elif stepped.any():
+            rows = np.empty((int(stepped.sum()), obs.shape[1]), dtype=np.float32)
+            _layout(self._ir[stepped], self._bear[stepped], rows, self._low, self._high)
+            obs[stepped] = rows
+        np.logical_or(terminations, truncations, out=self._autoreset)
+        return obs.copy(), rewards.copy(), terminations.copy(), truncations.copy(), {}

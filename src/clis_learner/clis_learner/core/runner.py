@@ -29,6 +29,7 @@ After each learning episode the learner trains every module from it (eqs. 6-9, 1
 from __future__ import annotations
 
 from collections.abc import Callable
+import dataclasses
 from dataclasses import asdict, dataclass, field
 import json
 import math
@@ -53,7 +54,7 @@ from clis_learner.core.learner import Learner
 from clis_learner.core.memory import EpisodeMemory, StreamBuffer
 
 __all__ = ['CONDITIONS', 'Agent', 'run_episode', 'place_selection_map', 'JobSpec', 'JobResult',
-           'run_job']
+           'run_job', 'warm_up']
 
 
 class Agent:
@@ -109,6 +110,9 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     selector, buffer = agent.selector, agent.buffer
     dt = sim.params.episode.dt
     every = [max(1, int(round(d.module.period / dt))) for d in deciders]
+    # the modules due at tick k are schedule[k % cycle] (cycle: the periods' common multiple)
+    cycle = math.lcm(*every)
+    schedule = [[d for d, n in zip(deciders, every) if k % n == 0] for k in range(cycle)]
     sim.reset(start=start, heading=heading)
     for d in deciders:
         d.reset()
@@ -117,9 +121,9 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     u_exec = np.zeros(2)
     k = 0
     while True:
-        t = k * dt
-        due = [d for d, n in zip(deciders, every) if k % n == 0]
+        due = schedule[k % cycle]
         if due:
+            t = k * dt
             percept = Percept.from_observation(t, sim.observe())
             proposals = [d.decide(percept) for d in due]
             for p in proposals:
@@ -131,9 +135,12 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
                     buffer.add_action(cmd.t, cmd.u, names[cmd.module])
         res = sim.step(u_exec)
         k += 1
-        buffer.add_reward(k * dt, res.reward)          # stamped at the end of the tick
-        for d in localizing:
-            d.on_wheels(sim.wheels[0], sim.wheels[1], dt)
+        if res.reward != 0.0:
+            buffer.add_reward(k * dt, res.reward)      # stamped at the end of the tick
+        if localizing:
+            v_left, v_right = sim.wheel_speeds
+            for d in localizing:
+                d.on_wheels(v_left, v_right, dt)
         if res.done:
             break
     memory = buffer.cut(0.0, k * dt, res.reached, agent.memory)
@@ -328,3 +335,15 @@ def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -
                      episodes=episodes, evals=evals, place_map=place_map,
                      arena=arena_dict(arena), seconds=time.perf_counter() - t0,
                      final_diagnostics=final, params_hash=params_hash(params))
+
+
+def warm_up(spec: JobSpec) -> None:
+    """Load the compiled kernels (numba, from its disk cache) in this process by running one
+    short Async episode in ``spec``'s arena: worker processes forked afterwards inherit them
+    instead of each loading them again (about 0.4 s per process)."""
+    params, sim_params, arena = spec.load()
+    sim_params = dataclasses.replace(sim_params, episode=dataclasses.replace(
+        sim_params.episode, time_limit=2.5))
+    sim = Simulator(arena, sim_params, np.random.default_rng(0))
+    agent = Agent(params, 'async', arena, np.random.default_rng(0), sim_params.robot.wheel_base)
+    run_episode(sim, agent, 'wander', None)

@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-from cr_sim.core.robot import integrate_arc, wheels_to_twist
+from cr_sim.core.kernels import odometry_step
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -137,8 +137,8 @@ class Decider:
         """
         if self.module.localizer is None:
             return
-        v, omega = wheels_to_twist(v_left, v_right, self.wheel_base)
-        self._odo = integrate_arc(*self._odo, v, omega, dt)
+        # wheels_to_twist then integrate_arc, compiled (called at every simulator tick)
+        self._odo = odometry_step(*self._odo, v_left, v_right, self.wheel_base, dt)
 
     def decide(self, percept: Percept) -> Proposal:
         """Decide at ``percept.t``: features, then ``u ~ pi_i(x, .)`` (10) and ``V_i(x)``."""

@@ -24,7 +24,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 import math
 
-from cr_sim.core.geometry import wrap_angles
+from cr_sim.core.geometry import TWO_PI, wrap_angles
+from cr_sim.core.kernels import njit
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -92,6 +93,9 @@ class RbfGrid:
         self.normalize = bool(normalize)
         self.n_rbf = int(math.prod(len(c) for c in self.centers))
         self.n = self.n_rbf + 1
+        self._flat_centers = np.concatenate(self.centers)
+        self._sizes = np.array([len(c) for c in self.centers], dtype=np.int64)
+        self._periodic = np.array(self.periodic, dtype=np.bool_)
 
     @property
     def dim(self) -> int:
@@ -134,5 +138,99 @@ class RbfGrid:
         return b
 
     def __call__(self, x: ArrayLike) -> np.ndarray:
-        """Features of one input ``x`` (shape (D,), NaN = not visible) -> shape (n,)."""
-        return self.batch(np.asarray(x, dtype=np.float64).reshape(1, self.dim))[0]
+        """Features of one input ``x`` (shape (D,), NaN = not visible) -> shape (n,).
+
+        The arithmetic of :meth:`batch` for one row, compiled (:func:`_rbf_exponents`,
+        :func:`_rbf_products`) around numpy's exp: bit-identical results (tested), the hot
+        path of every innate and view decision.
+        """
+        xs = np.asarray(x, dtype=np.float64).reshape(self.dim)
+        if self.n_rbf > _PAIRWISE_BLOCK:
+            return self.batch(xs[None, :])[0]
+        b = np.zeros(self.n)
+        if np.isnan(xs).any():
+            b[-1] = 1.0                                  # not visible: b = e_n
+            return b
+        q = _rbf_exponents(xs, self._flat_centers, self._sizes, self.phi, self._periodic,
+                           self.normalize)
+        # b_j(x) = exp(-||x - x_j||^2 / phi), one dimension at a time (III-B, III-C)
+        _rbf_products(np.exp(-q), self._sizes, self.normalize, b)
+        return b
+
+
+@njit
+def _rbf_exponents(x: np.ndarray, centers: np.ndarray, sizes: np.ndarray, phi: np.ndarray,
+                   periodic: np.ndarray, normalize: bool) -> np.ndarray:
+    """``(x_k - c_kj)^2 / phi_k`` per dimension k (distance wrapped where periodic, as
+    :func:`~cr_sim.core.geometry.wrap_angles`; minus its smallest value per dimension when
+    ``normalize``), concatenated: shape (sum n_k,)."""
+    q = np.empty(centers.shape[0])
+    start = 0
+    for k in range(sizes.shape[0]):
+        stop = start + sizes[k]
+        for j in range(start, stop):
+            d = x[k] - centers[j]
+            if periodic[k]:
+                r = (np.pi - d) % TWO_PI          # numpy's remainder (Python float %)
+                if r >= TWO_PI:
+                    r = 0.0
+                d = np.pi - r
+            q[j] = (d * d) / phi[k]
+        if normalize:
+            low = q[start]
+            for j in range(start + 1, stop):
+                low = min(low, q[j])
+            for j in range(start, stop):
+                q[j] -= low
+        start = stop
+    return q
+
+
+#: Length up to which :func:`_pairwise_sum` reproduces ``np.sum`` (numpy's block size).
+_PAIRWISE_BLOCK = 128
+
+
+@njit
+def _pairwise_sum(a: np.ndarray) -> float:
+    """``np.sum(a)`` of a contiguous float64 array of at most 128 elements, in numpy's order
+    of additions (its pairwise summation: 8 partial sums)."""
+    n = a.shape[0]
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    r = a[:8].copy()
+    i = 8
+    while i < n - n % 8:
+        for j in range(8):
+            r[j] += a[i + j]
+        i += 8
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        res += a[i]
+        i += 1
+    return res
+
+
+@njit
+def _rbf_products(g: np.ndarray, sizes: np.ndarray, normalize: bool, b: np.ndarray) -> None:
+    """``b[:-1]`` <- the outer product of the per-dimension profiles ``g`` (concatenated),
+    C order, divided by its sum when ``normalize``."""
+    n_rbf = b.shape[0] - 1
+    out = np.empty(n_rbf)
+    out[:sizes[0]] = g[:sizes[0]]
+    n, start = sizes[0], sizes[0]
+    for k in range(1, sizes.shape[0]):
+        m = sizes[k]
+        prev = out[:n].copy()
+        for i in range(n):
+            for j in range(m):
+                out[i * m + j] = prev[i] * g[start + j]
+        n *= m
+        start += m
+    if normalize:
+        total = _pairwise_sum(out)
+        for i in range(n_rbf):
+            out[i] /= total
+    b[:n_rbf] = out

@@ -23,7 +23,8 @@ expressed in the robot frame at the start of the interval:
 2. the heading axis is rolled by ``dtheta`` (periodic, linear weights between bins);
 3. Gaussian noise: a blur of standard deviation ``trans_noise * |d| + trans_noise_min`` in x and
    y (reflecting at the walls) and ``rot_noise * |dtheta| + rot_noise_min`` in heading
-   (periodic) -- :func:`scipy.ndimage.gaussian_filter`. The ``*_min`` terms also stand for the
+   (periodic) -- :func:`scipy.ndimage.gaussian_filter`'s arithmetic, compiled (:func:`_blur`,
+   bit-identical: tested). The ``*_min`` terms also stand for the
    spread of the true pose inside a cell; they are added per call, so call ``predict`` once per
    place-module period (not once per simulator tick).
 
@@ -34,9 +35,16 @@ von Mises approximation of a wrapped Gaussian of std ``sigma_bearing``). The tru
 anywhere inside its cell, so a cell's likelihood is the mean over ``sub_cells^2 x sub_headings``
 sub-poses spread inside it (with only the cell centre, the 30 deg bins force a wide
 ``sigma_bearing`` and the position becomes ambiguous along ridges near the corners: measured,
-65 % of MAP cells within 1 cell of the truth against 94 % with 2 x 2 x 3 sub-poses). ``cos`` and
-``sin`` of every ``mu_m`` are precomputed, so the update is one (2M x S N) matrix-vector
-product and one exp. A landmark that
+65 % of MAP cells within 1 cell of the truth against 94 % with 2 x 2 x 3 sub-poses). The
+bearing expected at a sub-pose ``(p, theta)`` is ``mu_m = phi_m(p) - theta``, ``phi_m(p)`` the
+direction of landmark m from position p, so with ``A_m = s_m - phi_m(p)``::
+
+    sum_m kappa cos(s_m - mu_m) = kappa (C(p) cos theta - S(p) sin theta),
+    C(p) = sum_m cos A_m,  S(p) = sum_m sin A_m     (sums over the seen landmarks)
+
+``cos phi_m`` and ``sin phi_m`` of every sub-position are precomputed; an update forms C and S
+per sub-position (2 x 2 M products) and the log-likelihood of every sub-pose from them
+(:func:`_log_likelihood`, compiled), then one exp. A landmark that
 is not seen (NaN) adds no information (occlusion is not modelled). The result is normalised,
 then ``floor`` of a uniform belief is mixed in so that no pose is ever ruled out for good; a
 belief that contradicts the reading (evidence below 1e-15 of the best cell's likelihood: the
@@ -47,16 +55,18 @@ from __future__ import annotations
 
 import math
 
+from cr_sim.core.kernels import njit
 from cr_sim.core.params import dataclass, param
 from cr_sim.core.robot import integrate_arc, wheels_to_twist
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import ndimage
 
 __all__ = ['LocalizationParams', 'MarkovLocalizer']
 
 #: Log-likelihoods below the best by more than this are clipped (e^-50 ~ 2e-22: nothing).
 _LOG_LIK_MIN = -50.0
+#: ``exp(_LOG_LIK_MIN)`` as numpy's exp computes it.
+_EXP_LOG_LIK_MIN = float(np.exp(np.array([_LOG_LIK_MIN]))[0])
 #: Evidence ``sum_x Pr(s | x) b(x)`` (the best cell's likelihood scaled to 1) below which the
 #: belief is taken to contradict the reading, and the update restarts from the reading alone.
 _EVIDENCE_MIN = 1e-15
@@ -147,26 +157,24 @@ class MarkovLocalizer:
         self._free = np.broadcast_to(free, self.shape).astype(np.float64)
         self._uniform = self._free / self._free.sum()
 
-        # mu_m(x) = atan2(l_y - y, l_x - x) - theta: bearing of landmark m expected from a pose,
-        # at sub_cells^2 points inside each cell and sub_headings headings inside each bin
+        # phi_m(p) = atan2(l_y - y, l_x - x): direction of landmark m from each sub-position p
+        # (sub_cells^2 points inside each cell), and the sub-headings theta (sub_headings
+        # inside each bin); the expected bearing is mu_m = phi_m(p) - theta
         m = len(self.landmarks_xy)
         off_xy = self.cell * ((np.arange(params.sub_cells) + 0.5) / params.sub_cells - 0.5)
         off_th = self.bin * ((np.arange(params.sub_headings) + 0.5) / params.sub_headings - 0.5)
-        cs = []
-        for ox in off_xy:
-            for oy in off_xy:
-                phi = np.arctan2(self.landmarks_xy[:, 1, None, None] - (gy[None] + oy),
-                                 self.landmarks_xy[:, 0, None, None] - (gx[None] + ox))
-                for ot in off_th:
-                    mu = phi[:, None] - (self.thetas + ot)[None, :, None, None]  # (M, K, nx, ny)
-                    cs.append(np.stack([np.cos(mu), np.sin(mu)], axis=1).reshape(m, 2, -1))
-        # (2M, S N): rows cos mu_0, sin mu_0, cos mu_1, ...; columns sub-pose major
-        self._n_sub = len(cs)
-        self._cs = np.ascontiguousarray(
-            np.stack(cs, axis=0).transpose(1, 2, 0, 3).reshape(2 * m, -1))
+        phi = np.array([[np.arctan2(self.landmarks_xy[:, 1, None, None] - (gy[None] + oy),
+                                    self.landmarks_xy[:, 0, None, None] - (gx[None] + ox))
+                         for oy in off_xy] for ox in off_xy])           # (sx, sy, M, nx, ny)
+        phi = phi.reshape(-1, m, n, ny)                                  # (Q, M, nx, ny)
+        self._cos_phi = np.ascontiguousarray(np.cos(phi))
+        self._sin_phi = np.ascontiguousarray(np.sin(phi))
+        th_sub = self.thetas[:, None] + off_th[None, :]                 # (K, T)
+        self._cos_th = np.ascontiguousarray(np.cos(th_sub))
+        self._sin_th = np.ascontiguousarray(np.sin(th_sub))
+        self._n_sub = phi.shape[0] * len(off_th)
+        self._cos_k, self._sin_k = np.cos(self.thetas), np.sin(self.thetas)
         self._p = self._uniform.copy()
-        self._ix = np.arange(n)
-        self._iy = np.arange(ny)
 
     # ------------------------------------------------------------------ state
 
@@ -217,14 +225,15 @@ class MarkovLocalizer:
         dtheta : float
             Heading change [rad], counter-clockwise positive.
         """
-        p = self._shift_xy(self._p, dx, dy)
-        p = self._shift_theta(p, dtheta)
+        p = self._shift(self._p, dx, dy, dtheta)
         prm = self.params
         s_xy = (prm.trans_noise * math.hypot(dx, dy) + prm.trans_noise_min) / self.cell
         s_th = (prm.rot_noise * abs(dtheta) + math.radians(prm.rot_noise_min_deg)) / self.bin
         if s_xy > 0.0 or s_th > 0.0:
-            p = ndimage.gaussian_filter(p, sigma=(s_th, s_xy, s_xy),
-                                        mode=('wrap', 'reflect', 'reflect'), truncate=3.0)
+            # = scipy.ndimage.gaussian_filter(p, (s_th, s_xy, s_xy), truncate=3.0,
+            #                                 mode=('wrap', 'reflect', 'reflect'))
+            w_xy = _gaussian_weights(s_xy, 3.0)
+            p = _blur(p, _gaussian_weights(s_th, 3.0), w_xy, w_xy)
         self._p = self._normalised(p * self._free)
 
     def predict_wheels(self, wheels: ArrayLike, dt: float, wheel_base: float) -> None:
@@ -248,34 +257,18 @@ class MarkovLocalizer:
             x, y, th = integrate_arc(x, y, th, v, omega, dt)
         self.predict(x, y, th)
 
-    def _shift_xy(self, p: np.ndarray, dx: float, dy: float) -> np.ndarray:
-        """Shift every heading layer k by ``R(theta_k) (dx, dy)`` (bilinear, zero fill)."""
+    def _shift(self, p: np.ndarray, dx: float, dy: float, dtheta: float) -> np.ndarray:
+        """Steps 1-2 of the motion update: every heading layer k shifted by
+        ``R(theta_k) (dx, dy)`` (bilinear, zero fill), then the heading axis rolled by
+        ``dtheta`` (periodic, linear weights between bins) (:func:`_shift_kernel`)."""
         _, n, ny = self.shape
-        c, s = np.cos(self.thetas), np.sin(self.thetas)
-        sx = np.clip((c * dx - s * dy) / self.cell, -n - 1.0, n + 1.0)  # (K,) in cells
-        sy = np.clip((s * dx + c * dy) / self.cell, -ny - 1.0, ny + 1.0)
-        ix, iy = np.floor(sx).astype(int), np.floor(sy).astype(int)
-        fx, fy = (sx - ix)[:, None, None], (sy - iy)[:, None, None]
-        pad = int(max(np.abs(ix).max(), np.abs(iy).max())) + 2
-        pp = np.zeros((self.n_headings, n + 2 * pad, ny + 2 * pad))
-        pp[:, pad:pad + n, pad:pad + ny] = p
-        kk = np.arange(self.n_headings)[:, None]
-        # mass at cell c moves to c + s = c + i + f: out[c] = (1 - f) p[c - i] + f p[c - i - 1]
-        rows = pad + self._ix[None, :] - ix[:, None]                     # (K, nx)
-        a = (1.0 - fx) * pp[kk, rows, :] + fx * pp[kk, rows - 1, :]      # (K, nx, ny + 2 pad)
-        cols = (pad + self._iy[None, :] - iy[:, None])[:, None, :]       # (K, 1, ny)
-        kk3, ii3 = kk[:, :, None], self._ix[None, :, None]
-        return (1.0 - fy) * a[kk3, ii3, cols] + fy * a[kk3, ii3, cols - 1]
-
-    def _shift_theta(self, p: np.ndarray, dtheta: float) -> np.ndarray:
-        """Roll the heading axis by ``dtheta`` (periodic, linear weights between bins)."""
+        sx = np.clip((self._cos_k * dx - self._sin_k * dy) / self.cell, -n - 1.0, n + 1.0)
+        sy = np.clip((self._sin_k * dx + self._cos_k * dy) / self.cell, -ny - 1.0, ny + 1.0)
+        ix, iy = np.floor(sx), np.floor(sy)                              # (K,) in cells
         st = dtheta / self.bin
-        it = int(math.floor(st))
-        ft = st - it
-        out = np.roll(p, it, axis=0)
-        if ft > 0.0:
-            out = (1.0 - ft) * out + ft * np.roll(p, it + 1, axis=0)
-        return out
+        it = math.floor(st)
+        return _shift_kernel(p, ix.astype(np.int64), sx - ix, iy.astype(np.int64), sy - iy,
+                             int(it), st - it)
 
     # ------------------------------------------------------------------ sensor update
 
@@ -296,17 +289,18 @@ class MarkovLocalizer:
         if not seen.any():
             return
         zs = np.where(seen, z, 0.0)
-        # kappa (cos s_m, sin s_m) for the seen landmarks, 0 for the others: (2M,)
-        coef = (self.kappa * seen[:, None] * np.stack([np.cos(zs), np.sin(zs)], axis=1)).ravel()
         # ln Pr(s | x') = sum_m kappa cos(s_m - mu_m(x')) + const  (von Mises per landmark),
-        # at every sub-pose x' of every cell: (S N,)
-        loglik = coef @ self._cs
-        loglik -= loglik.max()
-        np.maximum(loglik, _LOG_LIK_MIN, out=loglik)       # no denormals: exp is 3x faster
-        np.exp(loglik, out=loglik)
+        # at every sub-pose x' of every cell: (S, K, nx, ny), relative to the best one
+        loglik = _log_likelihood(np.cos(zs), np.sin(zs), seen, self.kappa, self._cos_phi,
+                                 self._sin_phi, self._cos_th, self._sin_th)
+        # minus the best, clipped at _LOG_LIK_MIN (no denormals), then exp: the clipped entries
+        # (about 97%) all get exp(_LOG_LIK_MIN), the others numpy's exp
+        flat = loglik.reshape(-1)
+        idx, vals = _clip_compact(flat, loglik.max(), _LOG_LIK_MIN, _EXP_LOG_LIK_MIN)
+        flat[idx] = np.exp(vals)
         # Pr(s | cell) = mean over its sub-poses (the pose is anywhere inside the cell); the
         # constant 1/S cancels in the normalisation
-        lik = loglik.reshape(self._n_sub, -1).sum(axis=0).reshape(self.shape)
+        lik = _sum_rows(loglik.reshape(self._n_sub, -1)).reshape(self.shape)
         # b(x) <- eta Pr(s | x) b(x)
         p = lik * self._p
         total = p.sum()
@@ -324,3 +318,207 @@ class MarkovLocalizer:
         if not (total > 0.0 and math.isfinite(total)):
             return self._uniform.copy()
         return p / total
+
+
+# ------------------------------------------------------------------ compiled kernels
+
+def _gaussian_weights(sigma: float, truncate: float) -> np.ndarray:
+    """Normalised Gaussian weights of std ``sigma`` [cells] over ``+-int(truncate sigma + 1/2)``
+    (``scipy.ndimage``'s kernel, its arithmetic), shape (2 r + 1,); empty when ``sigma`` is
+    (nearly) 0: that axis is not blurred."""
+    if not sigma > 1e-15:
+        return np.zeros(0)
+    radius = int(truncate * float(sigma) + 0.5)
+    x = np.arange(-radius, radius + 1)
+    phi = np.exp(-0.5 / (sigma * sigma) * x ** 2)
+    return phi / phi.sum()
+
+
+@njit
+def _extend(idx: int, n: int, wrap: bool) -> int:
+    """Index in ``[0, n)`` of position ``idx`` of a line extended periodically (``wrap``) or
+    mirrored (``reflect``: d c b a | a b c d | d c b a)."""
+    if wrap:
+        return idx % n
+    idx %= 2 * n
+    return 2 * n - 1 - idx if idx >= n else idx
+
+
+@njit
+def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.ndarray:
+    """Separable Gaussian blur of ``p`` (K, nx, ny), C-contiguous: axis 0 periodic (``wrap``),
+    axes 1 and 2 mirrored at the walls (``reflect``), one axis after the other, each with its
+    symmetric weights ``w`` (2 r + 1,) (empty: the axis is skipped). A new array.
+
+    ``scipy.ndimage.gaussian_filter``'s arithmetic (its correlate1d of a symmetric kernel:
+    ``out = x[0] w[r] + sum_{j = -r .. -1} (x[j] + x[-j]) w[r + j]``, in that order), so the
+    results are the same bit for bit; the loops run over whole contiguous rows.
+    """
+    n_k, nx, ny = p.shape
+    src = p.copy()
+    dst = np.empty_like(p)
+    if w0.size:
+        r = w0.size // 2
+        for k in range(n_k):
+            dst[k] = src[k] * w0[r]
+            for j in range(-r, 0):
+                lo, hi = _extend(k + j, n_k, True), _extend(k - j, n_k, True)
+                dst[k] += (src[lo] + src[hi]) * w0[r + j]
+        src, dst = dst, src
+    if w1.size:
+        r = w1.size // 2
+        for k in range(n_k):
+            for i in range(nx):
+                for c in range(ny):
+                    dst[k, i, c] = src[k, i, c] * w1[r]
+                for j in range(-r, 0):
+                    lo, hi = _extend(i + j, nx, False), _extend(i - j, nx, False)
+                    for c in range(ny):
+                        dst[k, i, c] += (src[k, lo, c] + src[k, hi, c]) * w1[r + j]
+        src, dst = dst, src
+    if w2.size:
+        r = w2.size // 2
+        line = np.empty(ny + 2 * r)
+        for k in range(n_k):
+            for i in range(nx):
+                for e in range(ny + 2 * r):
+                    line[e] = src[k, i, _extend(e - r, ny, False)]
+                for c in range(ny):
+                    dst[k, i, c] = line[c + r] * w2[r]
+                for j in range(-r, 0):
+                    for c in range(ny):
+                        dst[k, i, c] += (line[c + r + j] + line[c + r - j]) * w2[r + j]
+        src, dst = dst, src
+    return src
+
+
+@njit
+def _shift_kernel(p: np.ndarray, ix: np.ndarray, fx: np.ndarray, iy: np.ndarray,
+                  fy: np.ndarray, it: int, ft: float) -> np.ndarray:
+    """Bilinear shift of each heading layer, then the linear roll of the heading axis.
+
+    Parameters
+    ----------
+    p : np.ndarray, shape (K, nx, ny)
+    ix, iy : np.ndarray of int, shape (K,)
+        Whole cells of the shift of layer k; ``fx, fy`` (K,) the fractions in [0, 1).
+    it : int
+        Whole heading bins of the roll; ``ft`` the fraction in [0, 1).
+
+    Returns
+    -------
+    np.ndarray, shape (K, nx, ny)
+        Mass at cell c moves to c + i + f: ``q[c] = (1 - f) p[c - i] + f p[c - i - 1]`` per
+        axis (x first, then y; zero outside the grid), then
+        ``out[k] = (1 - ft) q[k - it] + ft q[k - it - 1]`` (indices mod K; ``q[k - it]`` when
+        ``ft = 0``).
+    """
+    n_k, nx, ny = p.shape
+    q = np.empty_like(p)
+    for k in range(n_k):
+        gx, gy = 1.0 - fx[k], 1.0 - fy[k]
+        for i in range(nx):
+            i0 = i - ix[k]
+            i1 = i0 - 1
+            in0 = 0 <= i0 < nx
+            in1 = 0 <= i1 < nx
+            for j in range(ny):
+                j0 = j - iy[k]
+                j1 = j0 - 1
+                a0 = a1 = 0.0
+                if 0 <= j0 < ny:
+                    a0 = gx * (p[k, i0, j0] if in0 else 0.0) + fx[k] * (p[k, i1, j0] if in1
+                                                                         else 0.0)
+                if 0 <= j1 < ny:
+                    a1 = gx * (p[k, i0, j1] if in0 else 0.0) + fx[k] * (p[k, i1, j1] if in1
+                                                                         else 0.0)
+                q[k, i, j] = gy * a0 + fy[k] * a1
+    if ft == 0.0:
+        out = np.empty_like(q)
+        for k in range(n_k):
+            out[k] = q[(k - it) % n_k]
+        return out
+    out = np.empty_like(q)
+    gt = 1.0 - ft
+    for k in range(n_k):
+        k0, k1 = (k - it) % n_k, (k - it - 1) % n_k
+        for i in range(nx):
+            for j in range(ny):
+                out[k, i, j] = gt * q[k0, i, j] + ft * q[k1, i, j]
+    return out
+
+
+@njit
+def _log_likelihood(cos_z: np.ndarray, sin_z: np.ndarray, seen: np.ndarray, kappa: float,
+                    cos_phi: np.ndarray, sin_phi: np.ndarray, cos_th: np.ndarray,
+                    sin_th: np.ndarray) -> np.ndarray:
+    """``kappa sum_m cos(s_m - mu_m)`` at every sub-pose (module docstring).
+
+    Parameters
+    ----------
+    cos_z, sin_z : np.ndarray, shape (M,)
+        Of the observed bearings; ``seen`` (M,) which are used.
+    cos_phi, sin_phi : np.ndarray, shape (Q, M, nx, ny)
+        Of the landmark directions from each sub-position q of each cell.
+    cos_th, sin_th : np.ndarray, shape (K, T)
+        Of each sub-heading t of each heading bin k.
+
+    Returns
+    -------
+    np.ndarray, shape (Q T, K, nx, ny)
+        Sub-pose major (q, then t).
+    """
+    n_q, n_m, nx, ny = cos_phi.shape
+    n_k, n_t = cos_th.shape
+    # C = kappa sum_m cos(s_m - phi_m), S = kappa sum_m sin(s_m - phi_m), per sub-position
+    cc = np.zeros((n_q, nx, ny))
+    ss = np.zeros((n_q, nx, ny))
+    for q in range(n_q):
+        for m in range(n_m):
+            if seen[m]:
+                for i in range(nx):
+                    for j in range(ny):
+                        cp, sp = cos_phi[q, m, i, j], sin_phi[q, m, i, j]
+                        cc[q, i, j] += cos_z[m] * cp + sin_z[m] * sp
+                        ss[q, i, j] += sin_z[m] * cp - cos_z[m] * sp
+    cc *= kappa
+    ss *= kappa
+    out = np.empty((n_q * n_t, n_k, nx, ny))
+    for q in range(n_q):
+        for t in range(n_t):
+            for k in range(n_k):
+                ct, st = cos_th[k, t], sin_th[k, t]
+                for i in range(nx):
+                    for j in range(ny):
+                        # kappa cos(A + theta) = C cos theta - S sin theta
+                        out[q * n_t + t, k, i, j] = cc[q, i, j] * ct - ss[q, i, j] * st
+    return out
+
+
+@njit
+def _clip_compact(a: np.ndarray, best: float, low: float, exp_low: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``v = max(a - best, low)`` of every entry of ``a`` (N,); ``a`` is overwritten with
+    ``exp_low`` and the entries with ``v > low`` are returned as (indices, v) for their exp."""
+    n = a.shape[0]
+    idx = np.empty(n, dtype=np.int64)
+    vals = np.empty(n)
+    m = 0
+    for i in range(n):
+        v = max(a[i] - best, low)
+        a[i] = exp_low
+        if v > low:
+            idx[m] = i
+            vals[m] = v
+            m += 1
+    return idx[:m], vals[:m]
+
+
+@njit
+def _sum_rows(a: np.ndarray) -> np.ndarray:
+    """``a.sum(axis=0)`` of ``a`` (S, N): the rows added in order."""
+    out = a[0].copy()
+    for s in range(1, a.shape[0]):
+        for i in range(a.shape[1]):
+            out[i] += a[s, i]
+    return out

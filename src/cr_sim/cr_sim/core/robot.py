@@ -30,7 +30,8 @@ from numpy.typing import ArrayLike
 from cr_sim.core.params import dataclass, param
 
 __all__ = [
-    'RobotParams', 'wheels_to_twist', 'twist_to_wheels', 'clamp_wheels', 'integrate_arc',
+    'RobotParams', 'wheels_to_twist', 'twist_to_wheels', 'clamp_wheel', 'clamp_wheels',
+    'integrate_arc',
 ]
 
 
@@ -84,6 +85,13 @@ def twist_to_wheels(v: float, omega: float, wheel_base: float) -> tuple[float, f
     return v - half, v + half
 
 
+def clamp_wheel(v: float, v_max: float) -> float:
+    """Safety clamp of one wheel velocity: non-finite -> 0, then clipped to ``+-v_max``."""
+    if not math.isfinite(v):
+        v = 0.0
+    return v_max if v > v_max else (-v_max if v < -v_max else v)
+
+
 def clamp_wheels(u: ArrayLike, v_max: float) -> np.ndarray:
     """Safety clamp of a wheel command: never lets a bad value through.
 
@@ -112,13 +120,7 @@ def clamp_wheels(u: ArrayLike, v_max: float) -> np.ndarray:
             from None
     if a.shape != (2,):
         raise ValueError(f'wheel command must be two numbers (v_left, v_right), got {u!r}')
-    out = np.empty(2)
-    for i in range(2):
-        v = float(a[i])
-        if not math.isfinite(v):
-            v = 0.0
-        out[i] = v_max if v > v_max else (-v_max if v < -v_max else v)
-    return out
+    return np.array((clamp_wheel(float(a[0]), v_max), clamp_wheel(float(a[1]), v_max)))
 
 
 def integrate_arc(x: float, y: float, theta: float, v: float, omega: float,

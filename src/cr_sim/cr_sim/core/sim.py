@@ -51,20 +51,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cr_sim.core import kernels
 from cr_sim.core.arena import Arena
-from cr_sim.core.geometry import box_planes, disc_gap, slab_planes, wrap_angle, wrap_angles
+from cr_sim.core.geometry import box_planes, disc_gap, wrap_angle
 from cr_sim.core.params import (
     dataclass,
     load_params,
     param,
 )
-from cr_sim.core.robot import (
-    RobotParams,
-    clamp_wheels,
-    integrate_arc,
-    twist_to_wheels,
-    wheels_to_twist,
-)
+from cr_sim.core.robot import RobotParams, clamp_wheels
 from cr_sim.core.wander import WanderParams, WanderPolicy
 
 __all__ = [
@@ -284,9 +279,12 @@ class Simulator:
         # integer step count of the time limit (t = k dt, no accumulated rounding)
         self._k_max = max(1, math.ceil(ep.time_limit / ep.dt - 1e-9))
         self._boxes, self._half = arena.gap_boxes()   # a non-square floor: walls as boxes
+        # for the kernel: numba cannot iterate an empty tuple; a box at infinity is never near
+        self._kernel_boxes = self._boxes or ((math.inf,) * 4,)
         dest = arena.destination
         self._dest = (dest.x, dest.y)
         self._goal_r2 = dest.goal_radius ** 2
+        self._reward_goal, self._reward_collision = ep.reward_goal, ep.reward_collision
         self._tol = ep.contact_tolerance
 
         # sensor model: rows = IR beams then camera targets (destination, landmarks);
@@ -306,6 +304,7 @@ class Simulator:
         self._noisy = sp.ir_noise_sigma > 0.0 or sig_b > 0.0
         self._sigmas = np.concatenate([np.full(self._n_ir, sp.ir_noise_sigma),
                                        np.full(len(self._targets), sig_b)])
+        self._no_noise = np.zeros(self._n_rays)
 
         self._wander = WanderPolicy(params.wander, self._ir_angles, rng)
         self._tick = 0
@@ -333,7 +332,12 @@ class Simulator:
     @property
     def wheels(self) -> np.ndarray:
         """Executed ``(v_left, v_right)`` of the last step [m/s], shape (2,)."""
-        return self._wheels.copy()
+        return np.array((self._wl, self._wr))
+
+    @property
+    def wheel_speeds(self) -> tuple[float, float]:
+        """:attr:`wheels` as two floats ``(v_left, v_right)`` [m/s] (no array made)."""
+        return self._wl, self._wr
 
     @property
     def done(self) -> bool:
@@ -407,7 +411,7 @@ class Simulator:
         self._x, self._y, self._th = float(x), float(y), wrap_angle(float(th))
         self._k = 0
         self._done = False
-        self._wheels = np.zeros(2)
+        self._wl = self._wr = 0.0
         self._touching = disc_gap(x, y, self._r, self._boxes, self._half) < self._tol
         self._tick += 1
 
@@ -433,40 +437,20 @@ class Simulator:
         k = 0
         # keep wandering while in the goal (the episode would be over at once); bounded
         while k < n or (self._in_goal(self._x, self._y) and k < 10 * n + 1000):
-            obs = self.observe()
-            self._move(clamp_wheels(self._wander.act(obs), self._vmax))
+            u = self._wander.act(self.observe())
+            self._move(float(u[0]), float(u[1]))
             self._tick += 1
             k += 1
         return self._x, self._y, self._th
 
     # ---------------------------------------------------------------------------- motion
-    def _move(self, u: np.ndarray) -> None:
-        """Advance one dt with clamped wheels ``u`` (contact model of the module docstring)."""
-        vl, vr = float(u[0]), float(u[1])
-        v, w = wheels_to_twist(vl, vr, self._b)
-        x0, y0, th0, dt, r = self._x, self._y, self._th, self._dt, self._r
-        boxes, half = self._boxes, self._half
-        x, y, th = integrate_arc(x0, y0, th0, v, w, dt)
-        gap = disc_gap(x, y, r, boxes, half)
-        blocked = gap < 0.0
-        if blocked:
-            # largest fraction s of the forward speed whose end pose is free (s = 0 is: the
-            # current pose is free and turning in place cannot overlap, the body is a disc)
-            lo, hi = 0.0, 1.0
-            for _ in range(_N_BISECT):
-                mid = 0.5 * (lo + hi)
-                xm, ym, _ = integrate_arc(x0, y0, th0, mid * v, w, dt)
-                if disc_gap(xm, ym, r, boxes, half) >= 0.0:
-                    lo = mid
-                else:
-                    hi = mid
-            v *= lo
-            x, y, th = integrate_arc(x0, y0, th0, v, w, dt)
-            gap = disc_gap(x, y, r, boxes, half)
-            vl, vr = twist_to_wheels(v, w, self._b)
-        self._x, self._y, self._th = x, y, wrap_angle(th)
-        self._wheels = np.array((vl, vr))
-        self._touching = blocked or gap < self._tol
+    def _move(self, u_left: float, u_right: float) -> None:
+        """Advance one dt under the command ``(u_left, u_right)`` [m/s], clamped, with the
+        contact model of the module docstring (:func:`cr_sim.core.kernels.move`)."""
+        (self._x, self._y, self._th, self._wl, self._wr, _blocked,
+         self._touching) = kernels.move(
+            self._x, self._y, self._th, u_left, u_right, self._vmax, self._b, self._dt,
+            self._r, self._kernel_boxes, self._half, self._tol, _N_BISECT)
 
     def step(self, u: ArrayLike, observe: bool = False) -> StepResult:
         """Hold the wheel command ``u`` for one ``episode.dt``.
@@ -491,23 +475,34 @@ class Simulator:
         if self._done:
             raise RuntimeError('the episode is over (reached or timeout): call reset()')
         before = self._touching
-        self._move(clamp_wheels(u, self._vmax))
+        if type(u) is np.ndarray and u.shape == (2,) and u.dtype.kind == 'f':
+            u_left, u_right = u.tolist()                   # the clamp is in the kernel
+        else:
+            u_left, u_right = clamp_wheels(u, self._vmax)  # any other input: checked here
+        self._move(u_left, u_right)
         self._k += 1
         self._tick += 1
-        ep = self.params.episode
-        collision = self._touching and not before
-        reached = self._in_goal(self._x, self._y)
+        collision = bool(self._touching and not before)
+        dx, dy = self._x - self._dest[0], self._y - self._dest[1]
+        reached = dx * dx + dy * dy <= self._goal_r2      # the centre within goal_radius
         timeout = (not reached) and self._k >= self._k_max
         reward = 0.0
         if collision:
-            reward += ep.reward_collision
+            reward += self._reward_collision
         if reached:
-            reward += ep.reward_goal
+            reward += self._reward_goal
         self._done = reached or timeout
         return StepResult(self._k * self._dt, reward, collision, reached, timeout, self,
                           self._tick, self.observe() if observe else None)
 
     # --------------------------------------------------------------------------- sensing
+    def _draw_noise(self) -> np.ndarray:
+        """The noise of one observation: IR beams then targets, shape (n_ir + T,) (zeros
+        without noise; nothing is drawn then)."""
+        if self._noisy:
+            return self._noise_rng.standard_normal(self._n_rays) * self._sigmas
+        return self._no_noise
+
     def observe(self) -> Observation:
         """The full sensor model at the current time (cached until the next step/reset).
 
@@ -518,50 +513,21 @@ class Simulator:
         if self._obs_tick == self._tick:
             return self._obs
         x, y, th = self._x, self._y, self._th
-        n = self._n_ir
-        # ray directions, x row then y row: unit beam vectors, then (target - robot) vectors
-        d = np.empty((2, self._n_rays))
-        a = self._ir_angles + th
-        np.cos(a, out=d[0, :n])
-        np.sin(a, out=d[1, :n])
-        np.subtract(self._targets_x, x, out=d[0, n:])
-        np.subtract(self._targets_y, y, out=d[1, n:])
-        t_near, t_far = slab_planes(x, y, d, self._planes)
-        if self._noisy:
-            noise = self._noise_rng.standard_normal(self._n_rays) * self._sigmas
-
-        # first hit of every ray: the robot centre is outside every box, so the line meets a
-        # box ahead iff 0 <= t_near <= t_far (t_near < 0 <= t_far cannot happen)
-        hit = np.where((t_near <= t_far) & (t_near >= 0.0), t_near, np.inf)     # (R, B)
-
-        # IR: beams start on the body surface, hence the reading is t_hit - radius
-        ir = hit[:n].min(axis=1)
-        ir -= self._r
-        if self._noisy:
-            ir += noise[:n]
-        np.maximum(ir, 0.0, out=ir)
-        np.minimum(ir, self._ir_range, out=ir)
-
-        # camera: bearing = direction of (target - robot) minus heading; hidden when the
-        # segment robot -> target (t in [0, 1]) enters a tall obstacle (the first columns),
-        # or when the target is out of range
-        dx, dy = d[0, n:], d[1, n:]
-        bearing = np.arctan2(dy, dx)
-        bearing -= th
-        if self._noisy:
-            bearing += noise[n:]
-        bearing = wrap_angles(bearing)
-        if self._n_tall:
-            hidden = hit[n:, :self._n_tall].min(axis=1) <= 1.0
-            if self._cam_range is not None:
-                hidden |= np.hypot(dx, dy) > self._cam_range
-            bearing[hidden] = np.nan
-        elif self._cam_range is not None:
+        noise = self._draw_noise()
+        # ray casts of the IR beams (unit directions) and of the segments robot -> target
+        # (t in [0, 1]) through the boxes; a target is hidden when its segment enters a tall
+        # obstacle (the first boxes). Walls and short obstacles hide nothing.
+        dx = self._targets_x - x
+        dy = self._targets_y - y
+        ir, bearing = kernels.scan(x, y, th, self._ir_angles, self._targets_x, self._targets_y,
+                                   np.arctan2(dy, dx), self._planes, self._n_tall, self._r,
+                                   self._ir_range, noise, self._noisy)
+        if self._cam_range is not None:
             bearing[np.hypot(dx, dy) > self._cam_range] = np.nan
         lm = bearing[1:]
         ir.flags.writeable = False
         lm.flags.writeable = False
-        wheels = self._wheels.copy()
+        wheels = np.array((self._wl, self._wr))
         wheels.flags.writeable = False
         obs = Observation(self._k * self._dt, ir, float(bearing[0]), lm, wheels)
         self._obs, self._obs_tick = obs, self._tick

@@ -1,0 +1,213 @@
+"""The compiled kernels (cr_sim.core.kernels, the localization's) give the results of the
+reference numpy/Python code they replace: bit for bit where the docstrings say so."""
+
+from __future__ import annotations
+
+import math
+
+from clis_modules.core.features import RbfGrid, uniform_centers
+from clis_modules.core.localization import (
+    MarkovLocalizer,
+    _blur,
+    _gaussian_weights,
+    _log_likelihood,
+)
+from clis_modules.core.modules import arena_map, load_module_params
+from cr_sim.core import kernels
+from cr_sim.core.arena import load_arena
+from cr_sim.core.geometry import box_planes, disc_gap, slab_planes, wrap_angle, wrap_angles
+from cr_sim.core.robot import clamp_wheels, integrate_arc, twist_to_wheels, wheels_to_twist
+from cr_sim.core.sim import load_sim_params
+import numpy as np
+import pytest
+from scipy import ndimage
+
+
+@pytest.fixture(scope='module')
+def world():
+    params = load_sim_params()
+    arena = load_arena(robot_radius=params.robot.radius)
+    return params, arena
+
+
+def _move_reference(x0, y0, th0, u, rp, dt, boxes, half, tol):
+    """The simulator's motion step as written before the kernel (pure Python)."""
+    vl, vr = clamp_wheels(u, rp.v_wheel_max)
+    v, w = wheels_to_twist(vl, vr, rp.wheel_base)
+    x, y, th = integrate_arc(x0, y0, th0, v, w, dt)
+    gap = disc_gap(x, y, rp.radius, boxes, half)
+    blocked = gap < 0.0
+    if blocked:
+        lo, hi = 0.0, 1.0
+        for _ in range(20):
+            mid = 0.5 * (lo + hi)
+            xm, ym, _ = integrate_arc(x0, y0, th0, mid * v, w, dt)
+            if disc_gap(xm, ym, rp.radius, boxes, half) >= 0.0:
+                lo = mid
+            else:
+                hi = mid
+        v *= lo
+        x, y, th = integrate_arc(x0, y0, th0, v, w, dt)
+        gap = disc_gap(x, y, rp.radius, boxes, half)
+        vl, vr = twist_to_wheels(v, w, rp.wheel_base)
+    return x, y, wrap_angle(th), float(vl), float(vr), blocked, blocked or gap < tol
+
+
+def test_move_kernel_is_the_reference_motion_bit_for_bit(world):
+    params, arena = world
+    rp, ep = params.robot, params.episode
+    boxes, half = arena.box_tuples(), arena.half
+    rng = np.random.default_rng(0)
+    blocked = 0
+    for _ in range(3000):
+        # free poses near the walls and obstacles, commands incl. out of range and NaN
+        while True:
+            x, y = rng.uniform(-half + rp.radius, half - rp.radius, 2)
+            if disc_gap(x, y, rp.radius, boxes, half) >= 0.0 and rng.random() < 0.3 + 0.7 * (
+                    disc_gap(x, y, rp.radius, boxes, half) < 0.05):
+                break
+        th = rng.uniform(-4.0, 4.0)
+        u = rng.uniform(-2.0, 2.0, 2)
+        if rng.random() < 0.05:
+            u[rng.integers(2)] = np.nan
+        want = _move_reference(x, y, th, u, rp, ep.dt, boxes, half, ep.contact_tolerance)
+        got = kernels.move(x, y, th, u[0], u[1], rp.v_wheel_max, rp.wheel_base, ep.dt,
+                           rp.radius, boxes, half, ep.contact_tolerance, 20)
+        assert got == want
+        blocked += want[5]
+    assert blocked > 100                     # the contact search was exercised
+
+
+def test_scan_kernel_is_the_reference_sensor_model_bit_for_bit(world):
+    params, arena = world
+    sp = params.sensors
+    angles = np.radians(np.asarray(sp.ir_angles_deg, dtype=np.float64))
+    n = len(angles)
+    dest = arena.destination
+    targets = np.array([[dest.x, dest.y]] + [[lm.x, lm.y] for lm in arena.landmarks])
+    tx, ty = np.ascontiguousarray(targets[:, 0]), np.ascontiguousarray(targets[:, 1])
+    planes = box_planes(arena.box_array(walls=True))
+    n_tall, r = len(arena.tall_obstacles), params.robot.radius
+    rng = np.random.default_rng(1)
+    hidden = 0
+    for k in range(2000):
+        while True:
+            x, y = rng.uniform(-arena.half + r, arena.half - r, 2)
+            if arena.gap(x, y, r) >= 0.0:
+                break
+        th = rng.uniform(-math.pi, math.pi)
+        noise = rng.standard_normal(n + len(targets)) * 0.01
+        noisy = k % 2 == 0
+        # the reference: the numpy sensor model (slab method over all rays and boxes)
+        d = np.empty((2, n + len(targets)))
+        d[0, :n], d[1, :n] = np.cos(angles + th), np.sin(angles + th)
+        d[0, n:], d[1, n:] = tx - x, ty - y
+        t_near, t_far = slab_planes(x, y, d, planes)
+        hit = np.where((t_near <= t_far) & (t_near >= 0.0), t_near, np.inf)
+        ir = hit[:n].min(axis=1) - r + (noise[:n] if noisy else 0.0)
+        ir = np.minimum(np.maximum(ir, 0.0), sp.ir_range)
+        bearing = np.arctan2(d[1, n:], d[0, n:]) - th + (noise[n:] if noisy else 0.0)
+        bearing = wrap_angles(bearing)
+        bearing[hit[n:, :n_tall].min(axis=1) <= 1.0] = np.nan
+        got_ir, got_b = kernels.scan(x, y, th, angles, tx, ty, np.arctan2(ty - y, tx - x),
+                                     planes, n_tall, r, sp.ir_range, noise, noisy)
+        np.testing.assert_array_equal(got_ir, ir)
+        np.testing.assert_array_equal(got_b, bearing)
+        hidden += int(np.isnan(bearing).sum())
+    assert hidden > 50                       # occlusion by the tall obstacles was exercised
+
+
+def test_wrap_in_scan_matches_wrap_angles_at_the_edges():
+    a = np.array([math.pi, -math.pi, 3 * math.pi, -3 * math.pi, 0.0, -0.0, 1e-17, -1e-17,
+                  math.pi + 1e-15, 7.0, -7.0, 2 * math.pi, -2 * math.pi, 1e6, -1e6])
+    zero = np.zeros(1)
+    got = np.array([kernels.scan(0.0, 0.0, 0.0, np.zeros(0), zero + 1.0, zero, np.array([v]),
+                                 np.zeros((2, 2, 0)), 0, 0.1, 1.0, zero, False)[1][0]
+                    for v in a])
+    np.testing.assert_array_equal(got, wrap_angles(a))
+
+
+def _shift_reference(loc, p, dx, dy, dtheta):
+    """The localization's motion shift as written before the kernel (numpy)."""
+    n = loc.shape[1]
+    c, s = np.cos(loc.thetas), np.sin(loc.thetas)
+    sx = np.clip((c * dx - s * dy) / loc.cell, -n - 1.0, n + 1.0)
+    sy = np.clip((s * dx + c * dy) / loc.cell, -n - 1.0, n + 1.0)
+    ix, iy = np.floor(sx).astype(int), np.floor(sy).astype(int)
+    fx, fy = (sx - ix)[:, None, None], (sy - iy)[:, None, None]
+    pad = int(max(np.abs(ix).max(), np.abs(iy).max())) + 2
+    pp = np.zeros((loc.n_headings, n + 2 * pad, n + 2 * pad))
+    pp[:, pad:pad + n, pad:pad + n] = p
+    kk, idx = np.arange(loc.n_headings)[:, None], np.arange(n)
+    rows = pad + idx[None, :] - ix[:, None]
+    a = (1.0 - fx) * pp[kk, rows, :] + fx * pp[kk, rows - 1, :]
+    cols = (pad + idx[None, :] - iy[:, None])[:, None, :]
+    kk3, ii3 = kk[:, :, None], idx[None, :, None]
+    out = (1.0 - fy) * a[kk3, ii3, cols] + fy * a[kk3, ii3, cols - 1]
+    st = dtheta / loc.bin
+    it = int(math.floor(st))
+    ft = st - it
+    rolled = np.roll(out, it, axis=0)
+    if ft > 0.0:
+        rolled = (1.0 - ft) * rolled + ft * np.roll(out, it + 1, axis=0)
+    return rolled
+
+
+@pytest.fixture(scope='module')
+def localizer():
+    lm, half, boxes = arena_map(load_arena())
+    return MarkovLocalizer(load_module_params().place.localization, lm, half, boxes)
+
+
+def test_localization_shift_kernel_is_the_reference_bit_for_bit(localizer):
+    rng = np.random.default_rng(2)
+    p = rng.random(localizer.shape)
+    for dx, dy, dth in [(0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (0.0, 0.0, math.pi / 6)] + [
+            tuple(rng.normal(0.0, s) for s in (0.3, 0.1, 1.0)) for _ in range(40)] + [
+            (5.0, -4.0, 20.0)]:
+        np.testing.assert_array_equal(localizer._shift(p, dx, dy, dth),
+                                      _shift_reference(localizer, p, dx, dy, dth))
+
+
+def test_localization_blur_is_scipy_gaussian_filter_bit_for_bit():
+    rng = np.random.default_rng(4)
+    for trial in range(150):
+        shape = (12, 20, 20) if trial < 80 else tuple(int(v) for v in rng.integers(1, 16, 3))
+        p = rng.random(shape)
+        s_th, s_xy = (float(rng.choice([0.0, rng.uniform(0.01, 3.0), rng.uniform(3.0, 12.0)],
+                                       p=[0.1, 0.8, 0.1])) for _ in range(2))
+        want = ndimage.gaussian_filter(p, sigma=(s_th, s_xy, s_xy), truncate=3.0,
+                                       mode=('wrap', 'reflect', 'reflect'))
+        w = _gaussian_weights(s_xy, 3.0)
+        np.testing.assert_array_equal(_blur(p, _gaussian_weights(s_th, 3.0), w, w), want)
+
+
+def test_localization_likelihood_is_the_von_mises_sum(localizer):
+    """kappa sum_m cos(s_m - mu_m) at every sub-pose, from the landmark directions."""
+    loc = localizer
+    z = np.array([0.3, -2.0, np.nan, 2.9])
+    seen = np.isfinite(z)
+    zs = np.where(seen, z, 0.0)
+    got = _log_likelihood(np.cos(zs), np.sin(zs), seen, loc.kappa, loc._cos_phi, loc._sin_phi,
+                          loc._cos_th, loc._sin_th)
+    phi = np.arctan2(loc._sin_phi, loc._cos_phi)                        # (Q, M, nx, ny)
+    theta = np.arctan2(loc._sin_th, loc._cos_th)                        # (K, T)
+    mu = phi[:, None, None] - theta.T[None, :, :, None, None, None]     # (Q, T, K, M, ...)
+    want = loc.kappa * np.cos(zs[None, None, None, :, None, None] - mu)
+    want = (want * seen[None, None, None, :, None, None]).sum(axis=3)
+    np.testing.assert_allclose(got, want.reshape(got.shape), rtol=0, atol=1e-9)
+
+
+def test_rbf_single_input_is_the_batch_row_bit_for_bit():
+    rng = np.random.default_rng(3)
+    theta = uniform_centers(-math.pi, math.pi, 9, True)
+    for normalize in (True, False):
+        g1 = RbfGrid([theta], [0.3], [True], normalize)
+        g2 = RbfGrid([theta, uniform_centers(0.0, 0.5, 9, False)], [0.3, 0.01],
+                     [True, False], normalize)
+        for _ in range(3000):
+            x = [rng.uniform(-4.0, 4.0), rng.uniform(-0.1, 0.7)]
+            if rng.random() < 0.05:
+                x[0] = np.nan
+            np.testing.assert_array_equal(g1([x[0]]), g1.batch([[x[0]]])[0])
+            np.testing.assert_array_equal(g2(x), g2.batch([x])[0])
