@@ -428,14 +428,16 @@ class BagReader:
         with open(self.file, 'rb') as fh:
             reader = StreamReader(fh, validate_crcs=True)
             records = reader.records
+            last_ok = 0
             while True:
                 try:
                     rec = next(records)
                 except StopIteration:
                     break
                 except Exception as exc:                    # noqa: BLE001 any decode failure
-                    self.damage = self._describe(exc, fh.tell(), size)
+                    self.damage = self._describe(exc, last_ok, size, fh)
                     raise BagError(self.damage) from None
+                last_ok = fh.tell()
                 if isinstance(rec, Message):
                     topic, msg_type = channels[rec.channel_id]
                     self.topics[topic].seen(rec.log_time)
@@ -465,12 +467,21 @@ class BagReader:
                            '(the recorder did not finish it: truncated or crashed)')
             raise BagError(self.damage)
 
-    def _describe(self, exc: Exception, offset: int, size: int) -> str:
+    def _describe(self, exc: Exception, offset: int, size: int, fh: Any) -> str:
+        """``offset``: where the last good record ended."""
         what = type(exc).__name__ + (f': {exc}' if str(exc) else '')
-        if offset >= size or 'EndOfFile' in what:
-            return (f'{self.file}: truncated: the file ends inside a record at byte {size} '
-                    f'({what}); the messages before it are readable')
-        return (f'{self.file}: corrupt record near byte {offset} of {size} ({what}); the '
+        fh.seek(offset)
+        head = fh.read(9)                    # opcode, uint64 length of the next record
+        if len(head) < 9 or offset + 9 + int.from_bytes(head[1:], 'little') > size:
+            what = 'EndOfFile' if offset < size else what
+        if offset >= size:
+            return (f'{self.file}: ends after {size} bytes without the MCAP footer (the '
+                    'recorder did not finish it: it crashed or was killed); the messages '
+                    'before are readable')
+        if 'EndOfFile' in what:
+            return (f'{self.file}: truncated: the file ends inside a record (bytes {offset} to '
+                    f'{size}, {what}); the messages before it are readable')
+        return (f'{self.file}: corrupt record after byte {offset} of {size} ({what}); the '
                 'messages before it are readable')
 
 
