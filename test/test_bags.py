@@ -300,6 +300,14 @@ def test_offline_learning_from_a_recorded_run_equals_the_live_learner(tmp_path):
     assert out.returncode == 0, out.stdout + out.stderr
     info = bag_info(bag)
     assert info.damage is None and info.custom_data['condition'] == 'view'
+    # no message lost at the graph's rates: every publication sequence number is there
+    seqs: dict[str, list[int]] = {}
+    for m in BagReader(bag).messages():
+        seqs.setdefault(m.topic, []).append(m.sequence)
+    for topic in ('/clock', '/ir', '/camera', '/reward', '/cmd_vel', '/view/proposal',
+                  '/arbiter/action', '/episode'):
+        s = np.sort(seqs[topic])
+        assert s[0] <= 2 and np.all(np.diff(s) == 1), f'{topic}: messages lost'
     ckpt = tmp_path / 'offline.npz'
     res = clis('learn', str(bag), '--out', str(ckpt))
     assert res.returncode == 0, res.stderr
