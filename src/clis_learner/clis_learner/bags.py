@@ -54,6 +54,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--clock', type=float, default=20.0, metavar='HZ',
                    help='publish /clock at this rate from the bag time when the bag has no '
                         '/clock of its own (0 = never; default 20)')
+    p.add_argument('--delay', type=float, default=1.0, metavar='S',
+                   help='wait this long for subscribers to match before playing (default 1)')
+    p.add_argument('--wait-for-subscribers', action='store_true',
+                   help='also wait (up to 60 s) until every topic has a subscriber')
     p.add_argument('--quiet', action='store_true', help='no progress line')
     p.set_defaults(func=_replay)
 
@@ -233,7 +237,7 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
     for bag, reader in zip(bags, readers):
         stream = EpisodeStream(modules, clis, condition, seed, version)   # new clock per run
         try:
-            for closed in feed_stream(stream, reader.messages(), namespace):
+            for closed in feed_stream(stream, reader.messages_by_time(), namespace):
                 if closed.learned:
                     summary['episodes'] += 1
                     last_episode = closed.episode

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+import heapq
 import json
 import os
 from pathlib import Path
@@ -37,8 +38,8 @@ from typing import Any
 import yaml
 
 __all__ = ['BagError', 'BagWriter', 'BagReader', 'BagMessage', 'TopicInfo', 'BagInfo',
-           'METADATA_VERSION', 'message_definition', 'type_hash', 'qos_yaml', 'parse_qos_yaml',
-           'bag_info', 'format_info', 'mcap_path']
+           'METADATA_VERSION', 'bag_topics', 'message_definition', 'type_hash', 'qos_yaml',
+           'parse_qos_yaml', 'bag_info', 'format_info', 'mcap_path']
 
 #: ``rosbag2_bagfile_information.version`` written (rosbag2 in Jazzy).
 METADATA_VERSION = 9
@@ -464,8 +465,28 @@ class BagReader:
                     self.complete = True
         if not self.complete:
             self.damage = (f'{self.file}: ends after {size} bytes without the MCAP footer '
-                           '(the recorder did not finish it: truncated or crashed)')
+                           '(still being recorded, or the recorder crashed or was killed)')
             raise BagError(self.damage)
+
+    def messages_by_time(self, topics: Iterable[str] | None = None,
+                         window_ns: int = 2_000_000_000) -> Iterator[BagMessage]:
+        """The messages in log-time order (as rosbag2 plays them), streaming: the file is in
+        receive order up to one poll of the recorder, so a reorder window of ``window_ns`` of
+        log time is enough. Damage raises :class:`BagError` after the messages before it."""
+        heap: list[tuple[int, int, BagMessage]] = []
+        k = 0
+        try:
+            for m in self.messages(topics):
+                heapq.heappush(heap, (m.log_ns, k, m))
+                k += 1
+                while heap and heap[0][0] < m.log_ns - window_ns:
+                    yield heapq.heappop(heap)[2]
+        except BagError:
+            while heap:
+                yield heapq.heappop(heap)[2]
+            raise
+        while heap:
+            yield heapq.heappop(heap)[2]
 
     def _describe(self, exc: Exception, offset: int, size: int, fh: Any) -> str:
         """``offset``: where the last good record ended."""
@@ -475,8 +496,8 @@ class BagReader:
         if len(head) < 9 or offset + 9 + int.from_bytes(head[1:], 'little') > size:
             what = 'EndOfFile' if offset < size else what
         if offset >= size:
-            return (f'{self.file}: ends after {size} bytes without the MCAP footer (the '
-                    'recorder did not finish it: it crashed or was killed); the messages '
+            return (f'{self.file}: ends after {size} bytes without the MCAP footer (still '
+                    'being recorded, or the recorder crashed or was killed); the messages '
                     'before are readable')
         if 'EndOfFile' in what:
             return (f'{self.file}: truncated: the file ends inside a record (bytes {offset} to '
@@ -525,6 +546,28 @@ def bag_info(bag: str | os.PathLike) -> BagInfo:
         pass
     return BagInfo(reader.file, reader.file.stat().st_size, reader.topics, reader.damage,
                    reader.custom_data)
+
+
+def bag_topics(bag: str | os.PathLike) -> dict[str, TopicInfo]:
+    """The topics of a bag (type, QoS, hash, count) from the MCAP summary, or by reading the
+    whole file when it has none (a bag not finished: :func:`bag_info`)."""
+    from mcap.reader import make_reader
+    path = mcap_path(bag)
+    try:
+        with open(path, 'rb') as fh:
+            summary = make_reader(fh).get_summary()
+    except Exception:                                   # noqa: BLE001 no/damaged summary
+        summary = None
+    if summary is None or summary.statistics is None:
+        return bag_info(bag).topics
+    counts = summary.statistics.channel_message_counts
+    out = {}
+    for cid, ch in summary.channels.items():
+        schema = summary.schemas.get(ch.schema_id)
+        out[ch.topic] = TopicInfo(ch.topic, schema.name if schema else '',
+                                  parse_qos_yaml(ch.metadata.get('offered_qos_profiles', '')),
+                                  ch.metadata.get('topic_type_hash', ''), int(counts.get(cid, 0)))
+    return out
 
 
 def format_info(info: BagInfo) -> str:
