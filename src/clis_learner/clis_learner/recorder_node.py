@@ -37,7 +37,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
-from clis_learner.core.bag import BagError, BagWriter, qos_dict, type_hash
+from clis_learner.core.bag import BagError, BagWriter, qos_dict
 from clis_learner.core.config import ClisParams, params_hash
 
 __all__ = ['RecorderParams', 'RecorderNode', 'GRAPH_TOPICS', 'LATCHED_TOPICS', 'qos_to_dict',
@@ -230,7 +230,7 @@ class RecorderNode(GraphNode):
     def _add_channel(self, topic: str, msg_type: str) -> None:
         infos = [i for i in self.get_publishers_info_by_topic(topic) if i.topic_type == msg_type]
         hashes = [str(i.topic_type_hash) for i in infos]
-        hash_ = next((h for h in hashes if h.startswith('RIHS')), '') or type_hash(msg_type)
+        hash_ = next((h for h in hashes if h.startswith('RIHS')), '')   # else the type's own
         profiles = [qos_to_dict(i.qos_profile) for i in infos]
         if not profiles:                                # gone already: what we asked for
             profiles = [qos_to_dict(self.subs[topic][1].qos_profile)]

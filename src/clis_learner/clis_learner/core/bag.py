@@ -273,15 +273,23 @@ class BagWriter:
     def add_topic(self, topic: str, msg_type: str,
                   qos_profiles: Sequence[Mapping[str, Any]] = (), hash_: str = '') -> None:
         """Register ``topic`` (once) with its type, offered QoS and type hash (default: from
-        the type's description)."""
+        the type's description). A type whose ``.msg`` is not installed is recorded with an
+        empty schema of encoding ``unknown``, as rosbag2 does."""
         if topic in self._channels:
             return
         msg_type = '/'.join(_split_type(msg_type))
         if msg_type not in self._schemas:
-            text = message_definition(msg_type, self.prefixes)
+            try:
+                encoding, text = 'ros2msg', message_definition(msg_type, self.prefixes)
+            except (BagError, OSError):          # as rosbag2: recorded, definition unknown
+                encoding, text = 'unknown', ''
             self._schemas[msg_type] = self._writer.register_schema(
-                msg_type, 'ros2msg', text.encode())
-        hash_ = hash_ or type_hash(msg_type, self.prefixes)
+                msg_type, encoding, text.encode())
+        if not hash_:
+            try:
+                hash_ = type_hash(msg_type, self.prefixes)
+            except (BagError, OSError, ValueError):
+                hash_ = ''
         profiles = [dict(p) for p in qos_profiles]
         self._channels[topic] = self._writer.register_channel(
             topic, 'cdr', self._schemas[msg_type],
