@@ -331,6 +331,16 @@ def test_offline_learning_from_a_recorded_run_equals_the_live_learner(tmp_path):
     meta_off = json.loads(str(off['__meta__']))
     assert meta_off['params_hash'] == meta_live['params_hash']
     assert meta_off['extra']['version'] == meta_live['extra']['version'] == 3
+    # ... exactly as the learner node loads `learner_node.resume`
+    from clis_learner.core.checkpoint import load_checkpoint
+    from clis_learner.core.config import load_clis_params, params_hash
+    from clis_modules.core.modules import arena_map, make_modules
+    from cr_sim.core.arena import load_arena
+    clis_params = load_clis_params()
+    mods = make_modules(clis_params, 'view', *arena_map(load_arena(None)))
+    meta = load_checkpoint(ckpt, mods, params_hash(clis_params))
+    assert meta['extra']['version'] == 3
+    np.testing.assert_array_equal(mods[0].W, off['view.W'])
     # a bag of another condition's modules is refused with the reason
     res = clis('learn', str(bag), '--condition', 'nope', '--out', str(ckpt))
     assert res.returncode == 2 and 'condition' in res.stderr
