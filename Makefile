@@ -3,6 +3,7 @@
 #   make test   set up, then lint and run the test suite
 #   make bench  set up, then run the benchmarks (results in docs/benchmarks.md)
 #   make reproduce  the full paper reproduction (about 40 min on 2 cores; docs/results.md)
+#   make equivalence  the node graph against the headless runner (docs/results.md; about 1 h)
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 .DELETE_ON_ERROR:
@@ -33,9 +34,9 @@ VARIANT_LIST := sync@common.beta=200.0,async@common.beta=200.0,async@arbiter.sel
   sync@learner.correction=clipped@common.beta=200.0,async@learner.correction=clipped@common.beta=200.0
 VARIANTS ?= $(subst $(space),,$(strip $(VARIANT_LIST)))
 
-.PHONY: help setup run test lint bench clean reproduce
+.PHONY: help setup run test lint bench clean reproduce equivalence
 help:
-	@sed -n '2,5p' Makefile | sed 's/^# *//'
+	@sed -n '2,6p' Makefile | sed 's/^# *//'
 
 setup: $(VENV)/.stamp install/.stamp
 
@@ -84,6 +85,24 @@ reproduce: setup
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --out $(REPRO_OUT) --resume
 	@$(ENV) && clis experiment --conditions $(VARIANTS) \
 	  --episodes $(REPRO_EPISODES) --seeds 5 --out $(REPRO_OUT)-variants --resume
+
+# The graph (clis run, sim time, lockstep) against the headless runner: the same conditions,
+# seeds and episode counts; clis compare prints success per block with 95% bands for both.
+EQUIV_OUT ?= results/equivalence
+EQUIV_CONDITIONS ?= view async
+EQUIV_SEEDS ?= 3
+EQUIV_EPISODES ?= 200
+equivalence: setup
+	@$(ENV) && for c in $(EQUIV_CONDITIONS); do for s in $$(seq 0 $$(($(EQUIV_SEEDS) - 1))); do \
+	  d=$(EQUIV_OUT)/graph-$$c-seed$$s; \
+	  if [ -f $$d/curve.csv ]; then echo "equivalence: $$d done"; continue; fi; rm -rf $$d; \
+	  clis run --condition $$c --seed $$s --episodes $(EQUIV_EPISODES) --out $$d || exit 1; \
+	done; done
+	@$(ENV) && clis experiment --conditions $$(echo $(EQUIV_CONDITIONS) | tr ' ' ,) \
+	  --episodes $(EQUIV_EPISODES) --seeds $(EQUIV_SEEDS) --out $(EQUIV_OUT)/headless --resume
+	@$(ENV) && for c in $(EQUIV_CONDITIONS); do \
+	  clis compare --a $(EQUIV_OUT)/graph-$$c-seed* --b $(EQUIV_OUT)/headless --condition $$c \
+	    --png $(EQUIV_OUT)/$$c.png | tee $(EQUIV_OUT)/$$c.txt; done
 
 clean:
 	rm -rf build install log $(VENV)

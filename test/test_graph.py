@@ -20,7 +20,9 @@ import time
 from clis_modules.core.arbiter import selection_probs
 from clis_modules.core.decider import Proposal
 from clis_modules.core.modules import condition_periods, load_module_params, module_gamma
+from clis_modules.graph_node import proposal_qos
 from cr_sim.conversions import from_time
+from cr_sim.core.params import config_dir, ros_parameters
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistStamped
 import numpy as np
@@ -36,6 +38,7 @@ pytestmark = pytest.mark.ros
 
 PERIODS = dict(condition_periods(load_module_params(), 'async'))
 MODULES = list(PERIODS)
+GRAPH = ros_parameters(config_dir() / 'graph.yaml', '/**')['graph']
 
 
 def clis_run(out: Path, *args: str) -> subprocess.Popen:
@@ -108,12 +111,18 @@ def episodes(probe: Probe) -> list[tuple[float, float]]:
     return out
 
 
+def delivered(probe: Probe) -> list[tuple[float, float]]:
+    """The ended episodes but the last: when the run has learned enough, `clis run` stops the
+    nodes, and what a node had not yet delivered to this (slower) probe is lost with it."""
+    return episodes(probe)[:-1]
+
+
 @pytest.fixture(scope='module')
 def async_run(tmp_path_factory):
     out = tmp_path_factory.mktemp('graph') / 'run'
     probe = Probe('graph_probe')
     listen_all(probe)
-    proc = clis_run(out, '--condition', 'async', '--episodes', '3', '--seed', '4')
+    proc = clis_run(out, '--condition', 'async', '--episodes', '4', '--seed', '4')
     graph = {'nodes': set(), 'next': 0.0}
 
     def seen_all() -> bool:
@@ -135,12 +144,13 @@ def test_clis_run_learns_and_writes_the_curve(async_run):
     out = async_run['out']
     with open(out / 'episodes.csv') as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 3
-    assert [int(r['version']) for r in rows] == [1, 2, 3]
+    assert len(rows) == 4
+    assert [int(r['version']) for r in rows] == [1, 2, 3, 4]
+    assert all(r['complete'] == '1' for r in rows)
     assert all(math.isclose(sum(float(r[f'p_{m}']) for m in MODULES), 1.0) for r in rows)
     for name in ('checkpoint.npz', 'curve.csv', 'curve.png', 'selection.png', 'logs/sim.log'):
         assert (out / name).is_file(), name
-    assert '3 episodes learned' in async_run['text']
+    assert '4 episodes learned' in async_run['text']
 
 
 def test_nodes_topics_and_types_match_the_readme(async_run, repo):
@@ -159,7 +169,7 @@ def test_nodes_topics_and_types_match_the_readme(async_run, repo):
 
 def test_modules_propose_at_their_periods_under_sim_time(async_run):
     probe = async_run['probe']
-    spans = episodes(probe)
+    spans = delivered(probe)
     assert spans
     for name, tau in PERIODS.items():
         t = np.array(sorted({stamp(m) for m in probe.msgs[f'{name}/proposal']}))
@@ -168,13 +178,14 @@ def test_modules_propose_at_their_periods_under_sim_time(async_run):
             assert inside.size >= min(2, 1 + int((t_end - t0) / tau)), (name, t0, t_end)
             assert inside[0] == pytest.approx(t0, abs=1e-6)          # decides at the start
             gaps = np.diff(inside)
-            assert np.all(np.abs(gaps - tau) <= 0.1 * tau), (name, gaps)
+            bad = np.abs(gaps - tau) > 0.1 * tau
+            assert not bad.any(), (name, t0, t_end, inside[1:][bad], gaps[bad])
 
 
 def test_lockstep_answers_every_instant_and_draws_once_per_episode(async_run):
     probe = async_run['probe']
     cmd = {round(stamp(m), 6) for m in probe.msgs['cmd_vel']}
-    for t0, t_end in episodes(probe):
+    for t0, t_end in delivered(probe):
         instants = [round(stamp(m), 6) for m in probe.msgs['wheels']
                     if t0 - 1e-6 <= stamp(m) < t_end - 1e-6]
         assert instants and all(t in cmd for t in instants)
@@ -284,7 +295,8 @@ def test_arbiter_choice_frequencies_match_eq3():
     probe = Probe('arbiter_probe')
     try:
         probe.listen(JointState, 'arbiter/selection', depth=5000)
-        pubs = {m: probe.node.create_publisher(JointState, f'{m}/proposal', 1000)
+        qos = proposal_qos(GRAPH['liveliness_lease'], depth=1000)   # what the arbiter asks
+        pubs = {m: probe.node.create_publisher(JointState, f'{m}/proposal', qos)
                 for m in MODULES}
         episode = probe.node.create_publisher(
             DiagnosticArray, 'episode',

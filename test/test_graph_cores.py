@@ -305,3 +305,22 @@ def test_tick_barrier_does_not_wait_for_a_decision_made_past_its_instant():
     ready = barrier.ready(0.2)
     assert [t for t, _ in ready] == [0.5, 0.55] and ready[0][1] == []
     assert [q.t for q in ready[1][1]] == [0.55] and barrier.missing == set()
+
+
+def test_tick_barrier_does_not_wait_for_a_module_known_dead():
+    """The arbiter learns from DDS liveliness that a module's process died: the instant due
+    for it is answered at once, long before the timeout, and the module rejoins by proposing."""
+    from clis_modules.core.lockstep import TickBarrier
+    barrier = TickBarrier(['innate', 'view'], [0.25, 0.5], timeout=5.0)
+
+    def p(module, t):
+        return Proposal(module, t, np.zeros(1), np.zeros(2), np.zeros(2), 0.1, 0.0, 0)
+    barrier.begin_episode(0.0)
+    barrier.on_tick(0.0, now=0.0)
+    barrier.on_proposal(p('innate', 0.0))
+    assert barrier.ready(0.1) == [] and barrier.waiting_for == ['view']
+    barrier.lost('view')
+    [(t, ps)] = barrier.ready(0.2)                            # 0.2 s, not the 5 s timeout
+    assert t == 0.0 and [q.module for q in ps] == ['innate'] and barrier.missing == {1}
+    barrier.on_proposal(p('view', 0.5))
+    assert barrier.missing == set()

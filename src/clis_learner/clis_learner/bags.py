@@ -173,7 +173,8 @@ def feed_stream(stream: Any, messages: Iterable[Any], namespace: str = '/') -> I
                 if closed is not None:
                     yield closed
             elif event in END_EVENTS:
-                stream.end(t, index, event)
+                stream.end(t, index, event,
+                           sim_return=float(values.get('episode_return', 'nan')))
     if stream.closing is not None:
         yield stream.close()
 
@@ -246,7 +247,9 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
                 say(f'{bag.name}: episode {closed.episode}: '
                     f'{"learned" if closed.learned else "not learned (start not recorded)"}, '
                     f'{closed.row["event"]} after {closed.row["duration"]:.2f} s, acted '
-                    f'{closed.row["behaviour"]}')
+                    f'{closed.row["behaviour"]}'
+                    + ('' if closed.row['complete'] else
+                       " (WARNING: its rewards do not sum to the simulator's return)"))
         except BagError as exc:
             summary['damaged'].append(str(exc))
             say(f'clis learn: {exc}; learned from the episodes before the damage')

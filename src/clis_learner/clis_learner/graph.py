@@ -466,8 +466,11 @@ def summary(out: Path, block: int) -> str:
     names = [c[len('share_'):] for c in rows[0] if c.startswith('share_')]
     shares = ', '.join(f'{m} {np.mean([float(r[f"share_{m}"]) for r in rows[-k:]]):.0%}'
                        for m in names)
+    lost = sum(r.get('complete', '1') == '0' for r in rows)
     return (f'summary: {n} episodes learned; reached {first}/{k} in the first {k}, '
-            f'{last}/{k} in the last {k}; who acted in the last {k}: {shares}')
+            f'{last}/{k} in the last {k}; who acted in the last {k}: {shares}'
+            + (f'; WARNING: {lost} episodes lost reward messages (see logs/learner.log)'
+               if lost else ''))
 
 
 def lockstep_timeouts(out: Path) -> int:

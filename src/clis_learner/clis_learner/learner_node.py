@@ -86,10 +86,12 @@ class LearnerNode(GraphNode):
                                                        PARAMS_QOS) for name in self.names}
         self.pub_progress = self.create_publisher(DiagnosticArray, '~/progress', PROGRESS_QOS)
         for name in self.names:
-            self.create_subscription(JointState, f'{name}/proposal', self._on_proposal, 50)
-        self.create_subscription(JointState, 'arbiter/action', self._on_action, 50)
-        self.create_subscription(JointState, 'arbiter/selection', self._on_selection, 50)
-        self.create_subscription(Vector3Stamped, 'reward', self._on_reward, 100)
+            self.create_subscription(JointState, f'{name}/proposal', self._on_proposal,
+                                     rconv.STREAM_DEPTH)
+        self.create_subscription(JointState, 'arbiter/action', self._on_action, rconv.STREAM_DEPTH)
+        self.create_subscription(JointState, 'arbiter/selection', self._on_selection,
+                                 rconv.STREAM_DEPTH)
+        self.create_subscription(Vector3Stamped, 'reward', self._on_reward, rconv.STREAM_DEPTH)
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.create_timer(0.005, self._on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._publish_params(0.0)
@@ -139,7 +141,8 @@ class LearnerNode(GraphNode):
         elif event in END_EVENTS:
             now = time.monotonic()
             skipped = self.stream.end(t, index, event, now + self.cfg.close_timeout,
-                                      now + self.cfg.close_grace)
+                                      now + self.cfg.close_grace,
+                                      float(values.get('episode_return', 'nan')))
             if skipped is not None:               # its start was not seen: nothing to learn
                 self._progress(skipped, t)
 
@@ -156,6 +159,11 @@ class LearnerNode(GraphNode):
 
     def _closed(self, closed: Closed) -> None:
         """After an episode: checkpoint, parameters, CSV row, progress (module docstring)."""
+        if not closed.row['complete']:
+            self.get_logger().warning(
+                f'episode {closed.episode}: the rewards received sum to '
+                f'{closed.row["ret"]:.3f}, the simulator says {closed.sim_return:.3f}: reward '
+                'messages were lost (learning from it anyway; `complete` = 0 in episodes.csv)')
         if closed.learned:
             if self.out is not None:
                 save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,

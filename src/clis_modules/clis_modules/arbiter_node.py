@@ -25,6 +25,7 @@ learner's densities are of). Layouts in :mod:`clis_modules.conversions`.
 
 from __future__ import annotations
 
+import math
 import time
 
 from cr_sim.core.params import dataclass, param
@@ -33,6 +34,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 import numpy as np
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from sensor_msgs.msg import JointState
 
 from clis_modules import conversions as conv
@@ -88,11 +90,14 @@ class ArbiterNode(GraphNode):
                                  np.random.default_rng([self.graph.seed, 3]))
         self.wheel_base = load_sim_params().robot.wheel_base
         cmd_type = TwistStamped if self.cfg.cmd_vel_stamped else Twist
-        self.pub_cmd = self.create_publisher(cmd_type, 'cmd_vel', 10)
-        self.pub_selection = self.create_publisher(JointState, '~/selection', 10)
-        self.pub_action = self.create_publisher(JointState, '~/action', 10)
+        self.pub_cmd = self.create_publisher(cmd_type, 'cmd_vel', rconv.STREAM_DEPTH)
+        self.pub_selection = self.create_publisher(JointState, '~/selection', rconv.STREAM_DEPTH)
+        self.pub_action = self.create_publisher(JointState, '~/action', rconv.STREAM_DEPTH)
         for name in names:
-            self.create_subscription(JointState, f'{name}/proposal', self._on_proposal, 10)
+            self.create_subscription(
+                JointState, f'{name}/proposal', self._on_proposal, self.graph.proposal_qos(),
+                event_callbacks=SubscriptionEventCallbacks(
+                    liveliness=lambda e, n=name: self._on_liveliness(n, e.alive_count)))
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.barrier = None
         self.u_exec = np.zeros(2)                    # the command in force
@@ -139,6 +144,15 @@ class ArbiterNode(GraphNode):
         else:
             self._publish(self.selector.on_proposals([p], self.now_s()))
 
+    def _on_liveliness(self, name: str, alive: int) -> None:
+        """No live publisher of ``name``'s proposals (its process died): stop waiting for it
+        at once (it rejoins with its next proposal)."""
+        if alive == 0:
+            self.get_logger().warning(f'{name} is gone (liveliness lost): not waiting for it')
+            if self.barrier is not None:
+                self.barrier.lost(name)
+                self._advance()
+
     def _on_check(self) -> None:
         self._publish(self.selector.check(self.now_s()))
 
@@ -156,11 +170,13 @@ class ArbiterNode(GraphNode):
             self.pub_cmd.publish(self.sent[0])
             self.sent = (self.sent[0], self.sent[1], now)
         missing = set(self.barrier.missing)
+        oldest = self.barrier.open[0][0] if self.barrier.open else math.nan
         answered = self.barrier.ready(now)
         if late := self.barrier.missing - missing:
             self.get_logger().warning(
                 f'lockstep: {", ".join(self.names[i] for i in sorted(late))} did not propose '
-                f'within {self.cfg.lockstep_timeout} s: answering without it until it does')
+                f'for t = {oldest:.3f} s within {self.cfg.lockstep_timeout} s (episode start '
+                f'{self.barrier.t0:.3f}): answering without it until it does')
         for t, ps in answered:
             cmd = self.selector.on_proposals(ps, t) if ps else None
             if cmd is None:

@@ -18,6 +18,7 @@ from collections.abc import Callable
 import sys
 from typing import Any
 
+from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
@@ -27,10 +28,11 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import LivelinessPolicy, QoSProfile
 
 from clis_modules.core.modules import CONDITIONS, ModuleSetParams
 
-__all__ = ['GraphParams', 'GraphNode', 'make_executor', 'run_node']
+__all__ = ['GraphParams', 'GraphNode', 'make_executor', 'proposal_qos', 'run_node']
 
 EXECUTORS = ('events', 'single')
 
@@ -45,6 +47,23 @@ class GraphParams:
                                 'config/arena.yaml')
     executor: str = param(choices=EXECUTORS, doc="rclpy executor: 'events' "
                           '(rclpy.experimental.EventsExecutor) or the default single-threaded')
+    liveliness_lease: float = param(0.1, 60.0, doc='[s wall] DDS liveliness lease of the '
+                                    'proposals: the arbiter knows a module died this soon')
+
+    def proposal_qos(self, depth: int = STREAM_DEPTH) -> QoSProfile:
+        """QoS of a module's proposals with this ``liveliness_lease``: see :func:`proposal_qos`."""
+        return proposal_qos(self.liveliness_lease, depth)
+
+
+def proposal_qos(lease: float, depth: int = STREAM_DEPTH) -> QoSProfile:
+    """QoS of a module's proposals, publisher and arbiter: automatic liveliness with a lease of
+    ``lease`` wall seconds, so that the arbiter notices a killed module within it.
+
+    DDS matches a publisher only if it offers a lease no longer than the one requested: a
+    hand-made publisher of proposals must offer it too (the default, infinite, does not match).
+    """
+    return QoSProfile(depth=depth, liveliness=LivelinessPolicy.AUTOMATIC,
+                      liveliness_lease_duration=Duration(seconds=lease))
 
 
 class GraphNode(Node):

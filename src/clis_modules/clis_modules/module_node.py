@@ -1,7 +1,8 @@
 """``ros2 run clis_modules innate|view|place``: one CLIS module deciding on its own timer.
 
-Every ``tau_i`` of the clock (``/clock`` under sim time; 250/500/1200 ms in Async, the slowest
-period for all in Sync) the module reads the latest ``camera`` and ``ir`` readings (the place
+Every ``tau_i`` of the clock (its timer; under sim time also the ``/clock`` reaching
+``t_0 + l tau_i``, whichever comes first; 250/500/1200 ms in Async, the slowest period for all
+in Sync) the module reads the latest ``camera`` and ``ir`` readings (the place
 module also every ``wheels`` reading since its last decision: odometry), decides through the
 same :class:`~clis_modules.core.decider.Decider` as the headless runner, and publishes its
 proposal on ``~/proposal`` (sensor_msgs/JointState: sampled wheel command, policy mean and
@@ -47,6 +48,8 @@ __all__ = ['ModuleNodeParams', 'ModuleNode', 'main', 'main_innate', 'main_view',
 
 #: Two stamps closer than this [s] are the same instant.
 _TOL = 1e-6
+#: Wall seconds a due decision may wait before the module logs why it waits.
+STALL_WARNING = 2.0
 #: QoS of the latched topics (episode events, parameters).
 LATCHED = QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PARAMS_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -82,24 +85,30 @@ class ModuleNode(GraphNode):
         self.due = False                        # a decision waits for fresh readings
         self.last_t = -math.inf                 # stamp of the last decision's readings
         self.due_t = -math.inf                  # a decision uses readings from this instant on
-        self.align: float | None = None         # restart the timer when the clock reaches it
+        self.align: float | None = None         # reset the timer's phase at this clock time
         self.expect_version = 0                 # parameter version announced by the start
         self.wait_until = 0.0                   # wall deadline of that wait
         self.pending = None                     # parameters received during an episode
         self.sent = None                        # (proposal, wall time) published last
+        self.due_wall = None                    # wall time the pending decision became due
+        self.stall_said = False
+        self.ended_t = -math.inf
+        self.last_grid = -math.inf
+        self.marked = -math.inf                 # the grid instant last marked due
         self.camera: deque = deque(maxlen=20)   # (stamp, dest bearing, landmark bearings)
         self.ir: deque = deque(maxlen=20)       # (stamp, d_o)
         self.wheels: deque = deque(maxlen=2000)  # (stamp, v_left, v_right)
         self.wheels_t = -math.inf               # stamp of the last wheels reading used
         self.landmarks = [lm.name for lm in arena.landmarks]
 
-        self.pub = self.create_publisher(JointState, '~/proposal', 10)
+        self.pub = self.create_publisher(JointState, '~/proposal', self.graph.proposal_qos())
         self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
                            if self.decider.localizes else None)
         self.create_subscription(JointState, 'camera', self._on_camera, 10)
         self.create_subscription(LaserScan, 'ir', self._on_ir, 10)
         if self.decider.localizes:
-            self.create_subscription(JointState, 'wheels', self._on_wheels, 100)
+            self.create_subscription(JointState, 'wheels', self._on_wheels,
+                                     rconv.STREAM_DEPTH)
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.create_subscription(JointState, '~/params', self._on_params, PARAMS_QOS)
         self.timer = self.create_timer(self.period, self._on_timer)
@@ -134,7 +143,7 @@ class ModuleNode(GraphNode):
         if event == 'start':
             self._start(t, int(values.get('params_version', 0)))
         elif event in END_EVENTS:
-            self.t0, self.due = None, False
+            self.t0, self.due, self.ended_t = None, False, t
 
     def _on_params(self, msg: JointState) -> None:
         try:
@@ -153,29 +162,41 @@ class ModuleNode(GraphNode):
             self._try_decide()
 
     def _on_timer(self) -> None:
-        if self.t0 is not None:
-            self.due = True
-            # under sim time the simulator publishes the readings of an instant before the
-            # clock reaches it: decide on those of the grid instant t_0 + l tau_i this timer
-            # fired for, or the first after it if the clock ran past it (in real time, on the
-            # newest readings)
-            self.due_t = self._grid(self.now_s()) if self.sim_time else -math.inf
+        if self.t0 is None:
+            return
+        if self.sim_time:
+            self._mark_due(self._grid(self.now_s()))
+        else:                                   # real time: decide on the newest readings
+            self.due, self.due_t = True, -math.inf
             self._try_decide()
 
     def _grid(self, t: float) -> float:
         """The last decision instant ``t_0 + l tau_i`` at or before ``t``."""
         return self.t0 + math.floor((t - self.t0) / self.period + 1e-6) * self.period
 
+    def _mark_due(self, g: float) -> None:
+        """Under sim time: decide on the readings of grid instant ``g`` (the simulator
+        publishes an instant's readings before the clock reaches it), or on the first after
+        it if the clock ran past it; once per grid instant, whichever of the timer and the
+        clock sees it first."""
+        if g > self.marked + _TOL:
+            self.marked = g
+            self.due, self.due_t = True, g
+            self._try_decide()
+
     def _on_clock(self, t: float) -> None:
         if self.align is not None and t >= self.align - _TOL:
-            at, self.align = self.align, None
-            self.timer.reset()                  # decisions at t_0 + l tau_i
-            if self.t0 is not None and at > self.t0 + _TOL:   # joined late: decide now
-                self.due, self.due_t = True, at
-                self._try_decide()
+            self.align = None
+            self.timer.reset()                  # the timer's phase: t_0 + l tau_i
+        # Decisions follow the clock itself: rclpy's sim-time timer fires on the same
+        # instants, but a run on a loaded machine once saw it not fire for a whole episode
+        # (every instant then waited out the arbiter's lockstep timeout)
+        if self.t0 is not None and t >= self.t0 - _TOL:
+            self._mark_due(self._grid(t))
 
     def _on_wall(self) -> None:
         now = time.monotonic()
+        self._check_stall(now)
         # under sim time the clock stands at the instant of the last proposal until the
         # arbiter has it: send it again if that takes long (lost while the graph connected)
         if self.sim_time and self.sent is not None and self.t0 is not None \
@@ -191,6 +212,30 @@ class ModuleNode(GraphNode):
             self.expect_version = self.decider.version
             self._try_decide()
 
+    def _check_stall(self, now: float) -> None:
+        """Say once why a decision has been due for long (a stalled lockstep explains itself)."""
+        if self.t0 is not None and not self.due and self.sim_time \
+                and self._grid(self.now_s()) > self.last_grid + _TOL:
+            why = f'no decision marked for {self._grid(self.now_s()):.3f}'
+        elif self.t0 is None and self.camera and self.camera[-1][0] > self.ended_t + _TOL:
+            why = f'no start event seen, readings at {self.camera[-1][0]:.3f}'
+        elif self.due and self.t0 is not None:
+            why = 'due'
+        else:
+            self.due_wall = None
+            return
+        if self.due_wall is None:
+            self.due_wall, self.stall_said = now, False
+        elif not self.stall_said and now - self.due_wall >= STALL_WARNING:
+            self.stall_said = True
+            cams = [round(t, 3) for t, *_ in self.camera][-3:]
+            irs = [round(t, 3) for t, _ in self.ir][-3:]
+            self.get_logger().warning(
+                f'{why}: waiting for {now - self.due_wall:.1f} s: t0 {self.t0}, '
+                f'clock {self.now_s():.3f}, due from {self.due_t:.3f}, last decision on '
+                f'{self.last_t:.3f}, parameters {self.decider.version} (expected '
+                f'{self.expect_version}), last camera {cams}, last ir {irs}')
+
     # ------------------------------------------------------------------ decisions
 
     def _start(self, t0: float, version: int) -> None:
@@ -200,14 +245,20 @@ class ModuleNode(GraphNode):
         self.expect_version = version
         self.wait_until = time.monotonic() + self.cfg.params_timeout
         self.wheels_t = t0
-        self.due, self.due_t = True, t0
         self.timer.reset()
-        if self.sim_time:
+        self.marked = -math.inf
+        if not self.sim_time:
+            self.due, self.due_t = True, -math.inf
+        else:
             now = self.now_s()
             if now < t0 - _TOL:                 # the clock has not reached the start yet
                 self.align = t0
-            elif now > t0 + _TOL:               # (re)started during the episode: next t_0+l tau
-                self.align = t0 + math.ceil((now - t0) / self.period - 1e-9) * self.period
+                self._mark_due(t0)
+            elif self._grid(now) >= now - _TOL:  # the clock stands at a decision instant
+                self._mark_due(self._grid(now))
+            else:                               # (re)started between two: the next one
+                self.marked = self._grid(now)
+                self.align = self.marked + self.period
         self._try_decide()
 
     def _apply_pending(self) -> None:
@@ -250,7 +301,7 @@ class ModuleNode(GraphNode):
                 self.decider.on_wheels(vl, vr, tw - self.wheels_t)
                 self.wheels_t = tw
         p = self.decider.decide(Percept(t, dest, d_o, lm))
-        self.due, self.last_t = False, t
+        self.due, self.last_t, self.last_grid = False, t, self.due_t
         msg = conv.proposal_msg(p, self.now_s())
         self.pub.publish(msg)
         self.sent = (msg, time.monotonic())

@@ -86,14 +86,14 @@ class SimNode(Node):
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_clock = self.create_publisher(conv.Clock, '/clock', 10)
-        self.pub_ir = self.create_publisher(conv.LaserScan, 'ir', 10)
-        self.pub_camera = self.create_publisher(conv.JointState, 'camera', 10)
-        self.pub_wheels = self.create_publisher(conv.JointState, 'wheels', 10)
-        self.pub_reward = self.create_publisher(conv.Vector3Stamped, 'reward', 10)
+        self.pub_ir = self.create_publisher(conv.LaserScan, 'ir', conv.STREAM_DEPTH)
+        self.pub_camera = self.create_publisher(conv.JointState, 'camera', conv.STREAM_DEPTH)
+        self.pub_wheels = self.create_publisher(conv.JointState, 'wheels', conv.STREAM_DEPTH)
+        self.pub_reward = self.create_publisher(conv.Vector3Stamped, 'reward', conv.STREAM_DEPTH)
         self.pub_episode = self.create_publisher(
             conv.DiagnosticArray, 'episode', QoSProfile(depth=10,
                                                         durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.pub_odom = self.create_publisher(conv.Odometry, 'odom', 10)
+        self.pub_odom = self.create_publisher(conv.Odometry, 'odom', conv.STREAM_DEPTH)
         self.pub_arena = self.create_publisher(conv.MarkerArray, 'arena', latched)
         self.pub_markers = self.create_publisher(conv.MarkerArray, 'markers', 10)
         cmd_type = conv.TwistStamped if self.cfg.cmd_vel_stamped else conv.Twist

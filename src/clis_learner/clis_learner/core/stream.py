@@ -38,12 +38,15 @@ __all__ = ['Closed', 'EpisodeStream']
 @dataclass(frozen=True)
 class Closed:
     """One closed episode: its row (:func:`~clis_learner.core.episodes.episode_row` plus the
-    stream's columns) and whether it was learned."""
+    stream's columns; ``complete`` = 0 when the rewards received do not sum to the
+    simulator's return, i.e. reward messages were lost), whether it was learned, and the
+    simulator's return."""
 
     row: dict[str, Any]
     learned: bool
     t_end: float
     episode: int
+    sim_return: float = math.nan
 
 
 class EpisodeStream:
@@ -116,14 +119,15 @@ class EpisodeStream:
         return closed
 
     def end(self, t: float, index: int, event: str, deadline: float = math.inf,
-            grace: float = 0.0) -> dict[str, Any] | None:
+            grace: float = 0.0, sim_return: float = math.nan) -> dict[str, Any] | None:
         """Episode ``index`` ended at ``t`` with ``event`` (one of the module nodes'
-        ``END_EVENTS``). It closes once :meth:`due` (wall
-        times ``grace`` / ``deadline`` of the caller's clock). A row with ``learned: 0`` if the
-        episode's start was not seen (nothing to learn), else None."""
+        ``END_EVENTS``) and the return ``sim_return`` the simulator counted (NaN: unknown). It
+        closes once :meth:`due` (wall times ``grace`` / ``deadline`` of the caller's clock). A
+        row with ``learned: 0`` if the episode's start was not seen (nothing to learn), else
+        None."""
         if self.episode is not None and self.episode['index'] == index:
             self.closing = {'t_end': t, 'reached': event == 'reached', 'event': event,
-                            'deadline': deadline, 'grace': grace}
+                            'return': float(sim_return), 'deadline': deadline, 'grace': grace}
             return None
         return {'episode': index, 'learned': 0, 'event': event}
 
@@ -149,6 +153,9 @@ class EpisodeStream:
         self.episode = self.closing = None
         mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory)
         probs, values = self._first_draw(ep['t0'], c['t_end'])
+        # every reward of the episode arrived iff they sum to the simulator's return
+        ret = float(mem.rewards()[1].sum())
+        complete = not abs(ret - c['return']) > 1e-6           # NaN: the sim did not say
         # learn only from episodes recorded from their start
         learnable = self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
         diag = self.learner.learn(mem) if learnable else {}
@@ -158,8 +165,8 @@ class EpisodeStream:
                'phase': 'train', 'episode': ep['index'],
                **episode_row(mem, self.names, probs, values, diag, ep['start']),
                'event': c['event'], 'learned': int(learnable), 'version': self.version,
-               'stale_decisions': ep['stale'], 't_end': c['t_end']}
-        return Closed(row, learnable, c['t_end'], ep['index'])
+               'stale_decisions': ep['stale'], 'complete': int(complete), 't_end': c['t_end']}
+        return Closed(row, learnable, c['t_end'], ep['index'], c['return'])
 
     def _first_draw(self, t0: float, t_end: float) -> tuple[list | None, list | None]:
         """``Pr(i | x)`` and values of the episode's first draw (None if none arrived)."""

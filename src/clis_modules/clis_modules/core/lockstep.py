@@ -78,6 +78,10 @@ class TickBarrier:
         self.inbox.append(p)
         return True
 
+    def lost(self, name: str) -> None:
+        """Module ``name`` is known dead: missing now, without waiting for a timeout."""
+        self.missing.add(self.index[name])
+
     def due(self, t: float) -> np.ndarray:
         """Modules whose decision is due at ``t`` and not missing, shape (N,), bool."""
         # decisions at t_0 + l tau_i
