@@ -314,10 +314,15 @@ def test_offline_learning_from_a_recorded_run_equals_the_live_learner(tmp_path):
     seqs: dict[str, list[int]] = {}
     for m in BagReader(bag).messages():
         seqs.setdefault(m.topic, []).append(m.sequence)
+    # (a volatile topic's first messages may go out before DDS has matched the new
+    # publisher with the recorder -- or any other subscriber: the simulator's /clock and
+    # sensor streams start at once; that is discovery, not loss at the rate)
     for topic in ('/clock', '/ir', '/camera', '/reward', '/cmd_vel', '/view/proposal',
                   '/arbiter/action', '/episode'):
         s = np.sort(seqs[topic])
-        assert s[0] <= 2 and np.all(np.diff(s) == 1), f'{topic}: messages lost'
+        assert np.all(np.diff(s) == 1), f'{topic}: messages lost'
+    for topic in ('/view/proposal', '/arbiter/action', '/episode'):
+        assert min(seqs[topic]) == 1, f'{topic}: the first messages are missing'
     ckpt = tmp_path / 'offline.npz'
     res = clis('learn', str(bag), '--out', str(ckpt))
     assert res.returncode == 0, res.stderr
