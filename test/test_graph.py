@@ -153,6 +153,17 @@ def test_clis_run_learns_and_writes_the_curve(async_run):
     assert '4 episodes learned' in async_run['text']
 
 
+def test_a_rerun_with_the_same_seed_is_bit_identical(async_run, tmp_path):
+    """Under lockstep every decision is made on the readings of its instant and applied from
+    it, whatever the machine's load: the same seed gives the same episodes, to the last bit."""
+    out = tmp_path / 'again'
+    code, text = finish(clis_run(out, '--condition', 'async', '--episodes', '4', '--seed', '4'),
+                        240)
+    assert code == 0, text
+    first = (async_run['out'] / 'episodes.csv').read_text()
+    assert (out / 'episodes.csv').read_text() == first
+
+
 def test_nodes_topics_and_types_match_the_readme(async_run, repo):
     graph = async_run['graph']
     assert {'sim', 'innate', 'view', 'place', 'arbiter', 'learner'} <= graph['nodes']

@@ -324,3 +324,25 @@ def test_tick_barrier_does_not_wait_for_a_module_known_dead():
     assert t == 0.0 and [q.module for q in ps] == ['innate'] and barrier.missing == {1}
     barrier.on_proposal(p('view', 0.5))
     assert barrier.missing == set()
+
+
+def test_lockstep_holds_only_at_decision_instants_when_given_the_periods():
+    """With the modules' periods the clock stands only at t0 + l tau_i (the command cannot
+    change between two decisions); without them, at every instant."""
+    from cr_sim.core.gate import EpisodeGate
+    gate = EpisodeGate(lockstep=True, command_timeout=5.0, hold_periods=(0.25, 1.2))
+    gate.started(1, t0=100.0)
+    held = []
+    for k in range(30):                                       # 100.00 ... 101.45
+        t = 100.0 + 0.05 * k
+        gate.published(t, now=0.0)
+        if gate.holding:
+            held.append(round(t - 100.0, 2))
+            gate.on_command(stamp=t)
+    assert held == [0.0, 0.25, 0.5, 0.75, 1.0, 1.2, 1.25]
+    every = EpisodeGate(lockstep=True, command_timeout=5.0)
+    every.started(1, t0=100.0)
+    every.published(100.05, now=0.0)
+    assert every.holding
+    every.on_command(stamp=100.0)                             # an older answer: still held
+    assert every.holding

@@ -60,7 +60,9 @@ def test_stream_learns_what_the_learner_learns_from_each_episode():
         assert stream.start(t0, ep, 'A') is None
         _feed(stream, recs, rng)
         assert stream.end(t0 + 6.0, ep, 'timeout') is None
-        assert stream.due(0.0) == (True, False)             # last reward in, no grace
+        assert stream.due(0.0) == (False, [])               # the arbiter's stop is missing
+        stream.action(t0 + 6.0, np.zeros(2), '')            # the stop at the end
+        assert stream.due(0.0) == (True, [])                # everything in, no grace
         closed = stream.close()
         assert closed.learned and closed.episode == ep and stream.version == ep
         # the same episode straight into a memory and the Learner
@@ -91,8 +93,9 @@ def test_episode_not_seen_from_its_start_is_not_learned_and_closing_waits():
     stream.reward(20.0, 0.0)
     stream.start(10.0, 4, 'B')                              # started before the first reward
     stream.end(26.0, 4, 'reached', deadline=100.0, grace=1.0)
-    assert stream.due(0.5) == (False, False)                # its last reward has not come
-    assert stream.due(100.0) == (True, True)                # deadline: late
+    assert stream.due(0.5) == (False, [])                   # its last reward has not come
+    close, missing = stream.due(100.0)                      # deadline: what is missing
+    assert close and 'the last reward' in missing
     closed = stream.close()
     assert not closed.learned and stream.version == 0
     with pytest.raises(RuntimeError):

@@ -115,7 +115,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     from clis_modules.core.modules import condition_periods
 
     from clis_learner.core.config import load_clis_params
-    modules = [name for name, _ in condition_periods(load_clis_params(), condition)]
+    periods = condition_periods(load_clis_params(), condition)
+    modules = [name for name, _ in periods]
     graph = {'graph.condition': condition, 'graph.seed': seed, 'graph.arena_file': arena}
     plan = GraphPlan()
     if record:                                       # the bag recorder: up first, stops last
@@ -131,7 +132,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     plan.children.append(Child('sim', 'cr_sim', 'sim', {
         'node.seed': seed, 'node.arena_file': arena, 'node.speed_factor': float(speed),
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
-        'node.lockstep': True},
+        'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods]},
         restart='never'))
     return plan
 

@@ -6,8 +6,10 @@ Subscribes to the streams the paper's learning thread reads: every module's prop
 the rewards (``reward``, stamped at the end of the step that earned them) and the ``episode``
 events. The records go into an :class:`~clis_learner.core.stream.EpisodeStream` (a
 :class:`~clis_learner.core.memory.StreamBuffer`; ``clis learn`` feeds the same one from a bag)
-in whatever order they arrive; when an episode ends (and its last reward has arrived, or
-``learner_node.close_timeout`` s of wall time passed) the buffer is cut into that episode's
+in whatever order they arrive; when an episode ends (and all of its records have arrived: its
+last reward, the arbiter's stop at its end, under sim time each module's last decision
+``t_0 + l tau_i`` before the end; or ``learner_node.close_timeout`` s of wall time passed) the
+buffer is cut into that episode's
 memory and the same :class:`~clis_learner.core.learner.Learner` as the headless runner resamples
 it to each module's grid and applies (7)-(9), (11).
 
@@ -56,7 +58,8 @@ class LearnerNodeParams:
 
     out_dir: str = param(doc="folder for episodes.csv and checkpoint.npz; '' = none")
     resume: str = param(doc="checkpoint to start from; '' = the initial parameters")
-    close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the last reward')
+    close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the records of an '
+                                  'ended episode')
     close_grace: float = param(0.0, 10.0, doc='wall seconds to wait for records in flight')
 
 
@@ -147,12 +150,13 @@ class LearnerNode(GraphNode):
                 self._progress(skipped, t)
 
     def _on_wall(self) -> None:
-        close, late = self.stream.due(time.monotonic())
+        close, missing = self.stream.due(time.monotonic(), on_grid=self.sim_time)
         if not close:
             return
-        if late:
-            self.get_logger().warning(f'episode {self.stream.episode["index"]}: its last reward '
-                                      f'did not arrive within {self.cfg.close_timeout} s')
+        if missing:
+            self.get_logger().warning(
+                f'episode {self.stream.episode["index"]}: {", ".join(missing)} did not arrive '
+                f'within {self.cfg.close_timeout} s: learning from what did')
         self._closed(self.stream.close())
 
     # ------------------------------------------------------------------ learning

@@ -114,8 +114,12 @@ class ArbiterNode(GraphNode):
             f'{", lockstep" if self.barrier else ""}')
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
-        t, event, _ = rconv.episode_from_msg(msg)
+        t, event, values = rconv.episode_from_msg(msg)
         if event == 'start':
+            # the draws' randomness in this episode: from (seed, episode), whatever happened
+            # at the end of the last one
+            self.selector.arbiter.rng = np.random.default_rng(
+                [self.graph.seed, 3, int(values.get('episode', 0))])
             self.selector.begin_episode(t)
             if self.barrier is not None:
                 self.barrier.begin_episode(t)
@@ -124,7 +128,7 @@ class ArbiterNode(GraphNode):
         elif event in END_EVENTS and self.selector.running:
             if self.barrier is not None:
                 self.barrier.end_episode()
-            self._publish(self.selector.end_episode())
+            self._publish(self.selector.end_episode(t))     # after all of its actions
 
     def _on_proposal(self, msg: JointState) -> None:
         try:

@@ -79,8 +79,8 @@ class ModuleNode(GraphNode):
         arena = self.arena()
         module = make_module(self.clis, kind, periods[kind], *arena_map(arena))
         self.period = periods[kind]
-        rng = np.random.default_rng([self.graph.seed, 2, MODULE_NAMES.index(kind)])
-        self.decider = Decider(module, rng, load_sim_params().robot.wheel_base)
+        self.kind_index = MODULE_NAMES.index(kind)
+        self.decider = Decider(module, self._episode_rng(0), load_sim_params().robot.wheel_base)
         self.t0: float | None = None            # start of the running episode (None: none)
         self.due = False                        # a decision waits for fresh readings
         self.last_t = -math.inf                 # stamp of the last decision's readings
@@ -137,11 +137,12 @@ class ModuleNode(GraphNode):
         t, v = rconv.wheels_from_msg(msg)
         if v.size == 2:
             self.wheels.append((t, float(v[0]), float(v[1])))
+            self._try_decide()
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
         t, event, values = rconv.episode_from_msg(msg)
         if event == 'start':
-            self._start(t, int(values.get('params_version', 0)))
+            self._start(t, int(values.get('params_version', 0)), int(values.get('episode', 0)))
         elif event in END_EVENTS:
             self.t0, self.due, self.ended_t = None, False, t
 
@@ -238,8 +239,15 @@ class ModuleNode(GraphNode):
 
     # ------------------------------------------------------------------ decisions
 
-    def _start(self, t0: float, version: int) -> None:
+    def _episode_rng(self, episode: int) -> np.random.Generator:
+        """The decisions' randomness in ``episode``: from (seed, module, episode), so that a
+        run does not depend on whether the module happened to decide once more at the last
+        instant of the episode before (before its end event arrived)."""
+        return np.random.default_rng([self.graph.seed, 2, self.kind_index, episode])
+
+    def _start(self, t0: float, version: int, episode: int = 0) -> None:
         self.decider.reset()
+        self.decider.rng = self._episode_rng(episode)
         self._apply_pending()
         self.t0 = t0
         self.expect_version = version
@@ -293,6 +301,11 @@ class ModuleNode(GraphNode):
         if found is None:
             return
         t, dest, lm, d_o = found
+        # the place module localizes on the motion up to t: under sim time wait for the wheel
+        # reading of t too (it travels on its own topic and may come after the camera's)
+        if self.decider.localizes and self.sim_time and self.wheels_t < t - _TOL \
+                and not (self.wheels and self.wheels[-1][0] >= t - _TOL):
+            return
         # odometry: the wheel velocities of every step that ended after the last reading
         # used, up to this one (each held since the previous reading)
         while self.wheels and self.wheels[0][0] <= t + _TOL:

@@ -52,6 +52,9 @@ class SimNodeParams:
     lockstep: bool = param(doc='after each instant, hold the clock until a command decided on '
                            'its readings arrives')
     command_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for that command')
+    lockstep_periods: tuple[float, ...] = param(0.0, 60.0, doc='lockstep holds only at the '
+                                                'instants t0 + l tau of these periods (the '
+                                                "controller's decision periods); 0 = every tick")
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
 
@@ -82,7 +85,8 @@ class SimNode(Node):
         self.episode_return = 0.0
         self.next_marker_t = 0.0
         self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout,
-                                self.cfg.lockstep, self.cfg.command_timeout)
+                                self.cfg.lockstep, self.cfg.command_timeout,
+                                hold_periods=self.cfg.lockstep_periods)
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_clock = self.create_publisher(conv.Clock, '/clock', 10)
@@ -162,7 +166,7 @@ class SimNode(Node):
         self.pub_episode.publish(conv.episode_msg(
             'start', self.sim_time, episode=self.episode, start=start,
             pose=' '.join(f'{p:.3f}' for p in self.sim.pose), **extra))
-        self.gate.started(self.episode)
+        self.gate.started(self.episode, self.t_start)
         self._publish_state()
 
     @property

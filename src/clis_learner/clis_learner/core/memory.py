@@ -190,6 +190,11 @@ class StreamBuffer:
         _insert(items, (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
         return True
 
+    def last_decision(self, module: str) -> float:
+        """Stamp of the newest decision of ``module`` held [s] (-inf: none)."""
+        items = self._dec[module]
+        return items[-1][0] if items else -math.inf
+
     def add_action(self, t: float, u: ArrayLike, behaviour: str) -> None:
         """From ``t`` [s] the robot executes ``u`` proposed by module ``behaviour``."""
         if behaviour not in self._index:

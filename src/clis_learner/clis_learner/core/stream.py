@@ -78,6 +78,7 @@ class EpisodeStream:
         self.closing: dict | None = None        # the ended episode waiting for its records
         self.first_reward_t = math.inf          # stamp of the first reward of the stream
         self.reward_t = -math.inf               # newest reward stamp (the watermark)
+        self.stop_t = -math.inf                 # newest stop of the arbiter
         self.draws: deque = deque(maxlen=10000)  # (t, Pr(i|x), V_i) of the arbiter's draws
 
     # ------------------------------------------------------------------ records
@@ -94,7 +95,8 @@ class EpisodeStream:
     def action(self, t: float, u: np.ndarray, acting: str) -> None:
         """The command in force from ``t`` (``acting = ''``: a stop, nobody acts). KeyError
         for a module not of the condition."""
-        if not acting:
+        if not acting:        # '' = a stop: nobody acts (the one at an episode's end comes
+            self.stop_t = max(self.stop_t, t)     # after all of that episode's actions)
             return
         if acting not in self.names:
             raise KeyError(acting)
@@ -131,16 +133,34 @@ class EpisodeStream:
             return None
         return {'episode': index, 'learned': 0, 'event': event}
 
-    def due(self, now: float) -> tuple[bool, bool]:
-        """``(close now, late)``: the ended episode's last reward is in and its grace time has
-        passed, or its deadline has (``late``: without the last reward)."""
+    def due(self, now: float, on_grid: bool = True) -> tuple[bool, list[str]]:
+        """``(close now, what is missing)``: every record of the ended episode is in
+        (:meth:`missing`) and its grace time has passed, or its deadline has (then the list
+        says what did not arrive). ``on_grid``: decisions fall on ``t_0 + l tau_i`` (sim
+        time)."""
         c = self.closing
         if c is None:
-            return False, False
-        arrived = self.reward_t >= c['t_end'] - TIME_TOL
-        if (arrived and now >= c['grace']) or now >= c['deadline']:
-            return True, not arrived
-        return False, False
+            return False, []
+        missing = self.missing(c['t_end'], on_grid)
+        if (not missing and now >= c['grace']) or now >= c['deadline']:
+            return True, missing
+        return False, []
+
+    def missing(self, t_end: float, on_grid: bool = True) -> list[str]:
+        """What of the episode ending at ``t_end`` has not arrived yet: its last reward, the
+        arbiter's stop at its end (sent after all of its actions), and each module's last
+        decision ``t_0 + l tau_i < t_end`` (they travel on separate topics, and a run without
+        lockstep pauses only at the decision instants)."""
+        t0 = self.episode['t0']
+        missing = [] if self.reward_t >= t_end - TIME_TOL else ['the last reward']
+        if self.stop_t < t_end - TIME_TOL:
+            missing.append("the arbiter's stop")
+        for m in self.modules if on_grid else ():            # real time: off the grid
+            # decisions at t_0 + l tau_i
+            last = t0 + math.floor((t_end - t0 - TIME_TOL) / m.period + 1e-9) * m.period
+            if self.buffer.last_decision(m.name) < last - TIME_TOL:
+                missing.append(f'the decision of {m.name} at {last:.3f} s')
+        return missing
 
     # ------------------------------------------------------------------ learning
 

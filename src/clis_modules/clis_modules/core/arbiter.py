@@ -227,11 +227,12 @@ class Selector:
         self.arbiter.current = None
         self.start_probs = self.start_values = None
 
-    def end_episode(self) -> Command:
-        """The episode ended: stop until the next :meth:`begin_episode`."""
+    def end_episode(self, t: float | None = None) -> Command:
+        """The episode ended (at ``t``; default its start): stop until the next
+        :meth:`begin_episode`."""
         self.running = self.waiting = False
         self.acting = -1
-        return self._stop(self.t0)
+        return self._stop(self.t0 if t is None else t)
 
     def fresh(self, now: float) -> np.ndarray:
         """Which modules are selectable at ``now``: a proposal of this episode, not older

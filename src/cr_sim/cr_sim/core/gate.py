@@ -14,6 +14,10 @@ same two things explicitly, or it outruns the graph (a tick takes microseconds):
   every instant once every decision due then is in, so that, as in the headless runner, each
   decision is made on the readings of its instant and acts from that instant on, however slow
   the machine. After a timeout (no controller) the clock runs free until a command arrives.
+  With ``hold_periods`` (the controller's decision periods ``tau_i``) the clock stands only at
+  the instants ``t_0 + l tau_i`` of the episode: between them the command cannot change (the
+  arbiter changes it only on decisions), so the run is the same, with one round trip through
+  the graph per decision instead of one per tick.
 
 A pure state machine: times are passed in (wall seconds, any monotonic origin), so the
 simulator node and the bridge share it and tests drive it without ROS.
@@ -43,6 +47,9 @@ class EpisodeGate:
     resend_period : float
         While waiting for a command, the readings are published again this often [wall s]
         (a message lost while the graph was connecting does not stall the run).
+    hold_periods : tuple of float
+        Lockstep holds only at ``t_0 + l tau`` for these ``tau`` [s]; empty (or a 0): at every
+        instant.
 
     Attributes
     ----------
@@ -60,6 +67,7 @@ class EpisodeGate:
     lockstep: bool = False
     command_timeout: float = 2.0
     resend_period: float = 0.2
+    hold_periods: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         self.state = 'run'
@@ -69,6 +77,7 @@ class EpisodeGate:
         self.deadline = math.inf         # wall deadline of the current wait
         self.free = False
         self.resend_at = math.inf
+        self.t0 = math.nan               # start of the running episode (sim time)
 
     @property
     def holding(self) -> bool:
@@ -89,13 +98,24 @@ class EpisodeGate:
         self.state, self.deadline = 'learner', now + self.learner_timeout
         return False
 
-    def started(self, episode: int) -> None:
-        """Episode ``episode`` started."""
-        self.episode = episode
+    def started(self, episode: int, t0: float = math.nan) -> None:
+        """Episode ``episode`` started at sim time ``t0``."""
+        self.episode, self.t0 = episode, float(t0)
+
+    def holds_at(self, t: float) -> bool:
+        """Whether lockstep holds the clock at instant ``t`` (a decision instant)."""
+        if not self.hold_periods or not math.isfinite(self.t0) or 0.0 in self.hold_periods:
+            return True
+        for tau in self.hold_periods:
+            # decisions at t_0 + l tau_i
+            steps = (t - self.t0) / tau
+            if abs(steps - round(steps)) * tau <= _TOL:
+                return True
+        return False
 
     def published(self, t: float, now: float) -> None:
         """The readings of sim time ``t`` were published at wall time ``now``."""
-        if self.lockstep and not self.free and self.state == 'run':
+        if self.lockstep and not self.free and self.state == 'run' and self.holds_at(t):
             self.t, self.state, self.deadline = t, 'command', now + self.command_timeout
             self.resend_at = now + self.resend_period
 
