@@ -18,6 +18,8 @@ ENV := source ./env.sh
 SOURCES := $(shell find src -type f \( -name '*.py' -o -name package.xml -o -name setup.cfg \
   -o -path '*/scripts/*' -o -path '*/resource/*' \) -not -path '*/__pycache__/*') $(wildcard config/*)
 RUN_ARGS ?=
+# make run records its run as a bag (MCAP) here; RECORD= turns it off.
+RECORD ?= bags/run-$(shell date +%Y%m%d-%H%M%S)
 
 # The full reproduction (docs/results.md): the paper preset, then the variants on seeds 0-4.
 REPRO_OUT ?= results/paper
@@ -61,11 +63,13 @@ install/.stamp: $(VENV)/.stamp $(SOURCES)
 
 # The main job on the simulator: check the ROS setup, then the CLIS node graph (simulator,
 # innate/view/place modules, arbiter, learner as processes) learning live in the Async
-# condition for 5 minutes, with a summary and the learning curve (OUT/curve.png).
+# condition for 5 minutes, with a summary and the learning curve (OUT/curve.png); the run is
+# recorded as a bag in bags/ (clis bag info, clis replay, clis learn).
 # The headless experiment is one command away: clis experiment --help.
 run: setup
 	@$(ENV) && clis doctor
-	@$(ENV) && clis run --condition async --episodes 1000 --time-limit 5 $(RUN_ARGS)
+	@$(ENV) && clis run --condition async --episodes 1000 --time-limit 5 \
+	  $(if $(RECORD),--record $(RECORD)) $(RUN_ARGS)
 
 lint: setup
 	$(VENV)/bin/ruff check src test bench

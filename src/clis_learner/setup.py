@@ -24,6 +24,7 @@ setup(
         'console_scripts': [
             'clis = clis_learner.cli:main',
             'learner = clis_learner.learner_node:main',
+            'recorder = clis_learner.recorder_node:main',
         ],
     },
 )

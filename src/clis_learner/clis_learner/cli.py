@@ -25,6 +25,7 @@ examples:
   clis --network doctor            opt in to DDS on all interfaces (e.g. a real robot)
   clis experiment --help           the paper's experiments, headless (Fig. 3-5)
   clis report results/paper        tables of measured results from experiment folders
+  clis run --record bags/NAME      record the run as a bag; clis bag info / replay / learn it
 """
 
 
@@ -46,8 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list:
     """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
-    from clis_learner import compare, experiment, graph, report
-    return [experiment.register, report.register, graph.register, compare.register]
+    from clis_learner import bags, compare, experiment, graph, report
+    return [experiment.register, report.register, graph.register, compare.register,
+            bags.register]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -71,6 +71,7 @@ class Child:
     executable: str
     params: dict[str, Any]
     restart: str = 'always'
+    stop_last: bool = False           # stopped after the learner (the recorder)
     proc: subprocess.Popen | None = None
     restarts: int = 0
     log: Path | None = None
@@ -114,7 +115,8 @@ class GraphPlan:
 
 
 def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str = '',
-               arena: str = '', robot: str = 'sim', device: str = 'emulator') -> GraphPlan:
+               arena: str = '', robot: str = 'sim', device: str = 'emulator',
+               record: str = '') -> GraphPlan:
     """The nodes of ``condition``, with the parameters ``clis run`` gives each."""
     from clis_modules.core.modules import condition_periods
 
@@ -123,6 +125,10 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     modules = [name for name, _ in periods]
     graph = {'graph.condition': condition, 'graph.seed': seed, 'graph.arena_file': arena}
     plan = GraphPlan()
+    if record:                                       # the bag recorder: up first, stops last
+        plan.children.append(Child('recorder', 'clis_learner', 'recorder', {
+            **graph, 'recorder.path': record, 'recorder.on_exists': 'number'},
+            stop_last=True))
     plan.children.append(Child('learner', 'clis_learner', 'learner', {
         **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume},
         restart='resume'))
@@ -267,10 +273,12 @@ class Supervisor:
 
     def stop(self, timeout: float = 10.0) -> None:
         """SIGINT the robot interface, then the modules and arbiter, the learner last."""
-        order = [c for c in self.plan.children if c.restart == 'never'] + \
-                [c for c in self.plan.children if c.restart == 'always'] + \
-                [c for c in self.plan.children if c.restart == 'resume']
-        for group in (order[:1], order[1:-1], order[-1:]):
+        children = [c for c in self.plan.children if not c.stop_last]
+        order = [c for c in children if c.restart == 'never'] + \
+                [c for c in children if c.restart == 'always'] + \
+                [c for c in children if c.restart == 'resume']
+        last = [c for c in self.plan.children if c.stop_last]
+        for group in (order[:1], order[1:-1], order[-1:], last):
             live = [c for c in group if c.proc is not None and c.proc.poll() is None]
             for c in live:
                 c.proc.send_signal(signal.SIGINT)
@@ -417,6 +425,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='seconds for the nodes to come up (default 60)')
     p.add_argument('--single-process', action='store_true',
                    help='all nodes in this process, one executor (a component container)')
+    p.add_argument('--record', type=Path, metavar='BAG',
+                   help='record every topic of the run into this bag folder (MCAP, e.g. '
+                        'bags/NAME; see clis bag info / replay / learn)')
     p.add_argument('--quiet', action='store_true', help='no progress line')
     p.set_defaults(func=main)
 
@@ -466,7 +477,8 @@ def main(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     plan = plan_graph(args.condition, args.seed, out, args.speed,
                       str(args.resume.resolve()) if args.resume else '', args.arena,
-                      args.robot, args.device)
+                      args.robot, args.device,
+                      str(args.record.resolve()) if args.record else '')
     tty = sys.stderr.isatty() and not args.quiet
 
     def say(text: str) -> None:

@@ -35,6 +35,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         _ros_literal,
     )
     from clis_learner.learner_node import LearnerNode
+    from clis_learner.recorder_node import RecorderNode
 
     ros_args = ['clis_run', '--ros-args']
     for f in args.params:
@@ -43,7 +44,8 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         for key, value in child.params.items():
             ros_args += ['-p', f'{key}:={_ros_literal(value)}']
     rclpy.init(args=ros_args)
-    factories = {'learner': LearnerNode, 'arbiter': ArbiterNode, 'sim': SimNode}
+    factories = {'learner': LearnerNode, 'arbiter': ArbiterNode, 'sim': SimNode,
+                 'recorder': RecorderNode}
     nodes = []
     executor = SingleThreadedExecutor()
     try:

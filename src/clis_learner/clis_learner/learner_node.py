@@ -4,12 +4,12 @@ Subscribes to the streams the paper's learning thread reads: every module's prop
 (``<module>/proposal``: its decision times and features ``b_i(x)``), the executed commands
 (``arbiter/action``: who acted and its proposal), the arbiter's draws (``arbiter/selection``),
 the rewards (``reward``, stamped at the end of the step that earned them) and the ``episode``
-events. The records go into a :class:`~clis_learner.core.memory.StreamBuffer` in whatever
-order they arrive; when an episode ends (and all of its records have arrived: its last reward,
-the arbiter's stop at its end, under sim time each module's last decision ``t_0 + l tau_i``
-before the end; or ``learner_node.close_timeout`` s of wall time passed without a new record)
-the buffer is cut
-into that episode's
+events. The records go into an :class:`~clis_learner.core.stream.EpisodeStream` (a
+:class:`~clis_learner.core.memory.StreamBuffer`; ``clis learn`` feeds the same one from a bag)
+in whatever order they arrive; when an episode ends (and all of its records have arrived: its
+last reward, the arbiter's stop at its end, under sim time each module's last decision
+``t_0 + l tau_i`` before the end; or ``learner_node.close_timeout`` s of wall time passed) the
+buffer is cut into that episode's
 memory and the same :class:`~clis_learner.core.learner.Learner` as the headless runner resamples
 it to each module's grid and applies (7)-(9), (11).
 
@@ -24,7 +24,6 @@ says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint.
 
 from __future__ import annotations
 
-from collections import deque
 import csv
 import math
 import os
@@ -43,9 +42,7 @@ from sensor_msgs.msg import JointState
 
 from clis_learner.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from clis_learner.core.config import ClisParams, params_hash
-from clis_learner.core.episodes import episode_row
-from clis_learner.core.learner import Learner
-from clis_learner.core.memory import TIME_TOL, EpisodeMemory, StreamBuffer
+from clis_learner.core.stream import Closed, EpisodeStream
 from clis_modules import conversions as mconv
 from cr_sim import conversions as rconv
 
@@ -62,41 +59,33 @@ class LearnerNodeParams:
 
     out_dir: str = param(doc="folder for episodes.csv and checkpoint.npz; '' = none")
     resume: str = param(doc="checkpoint to start from; '' = the initial parameters")
-    close_timeout: float = param(0.0, 600.0, doc='wall seconds without a new record before an '
-                                  'ended episode is learned from what arrived')
+    close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the records of an '
+                                  'ended episode')
     close_grace: float = param(0.0, 10.0, doc='wall seconds to wait for records in flight')
 
 
 class LearnerNode(GraphNode):
-    """Thin glue around a :class:`StreamBuffer` and a :class:`Learner` (module docstring)."""
+    """Thin glue around an :class:`~clis_learner.core.stream.EpisodeStream` (module docstring)."""
 
     def __init__(self) -> None:
         super().__init__('learner', 'learner_node', LearnerNodeParams, clis_cls=ClisParams)
         self.modules = make_modules(self.clis, self.graph.condition, *arena_map(self.arena()))
         self.names = [m.name for m in self.modules]
-        self.min_period = min(m.period for m in self.modules)
-        self.learner = Learner(self.modules, self.clis)
-        self.buffer = StreamBuffer(self.names)
-        self.memory = EpisodeMemory(self.names)
         self.hash = params_hash(self.clis)
-        self.version = 0
+        version = 0
         if self.cfg.resume:
             try:
                 meta = load_checkpoint(self.cfg.resume, self.modules, self.hash)
             except CheckpointError as exc:
                 raise ConfigError(f'learner_node.resume: {exc}') from None
-            self.version = int(meta['extra'].get('version', 0))
-            self.get_logger().info(f'resumed from {self.cfg.resume}: version {self.version}')
+            version = int(meta['extra'].get('version', 0))
+            self.get_logger().info(f'resumed from {self.cfg.resume}: version {version}')
+        self.record_wall = -math.inf            # wall time the last record arrived
+        self.stream = EpisodeStream(self.modules, self.clis, self.graph.condition,
+                                    self.graph.seed, version)
         self.out = Path(self.cfg.out_dir) if self.cfg.out_dir else None
         if self.out is not None:
             self.out.mkdir(parents=True, exist_ok=True)
-        self.episode: dict | None = None        # the running episode (seen from its start)
-        self.closing: dict | None = None        # the ended episode waiting for its records
-        self.first_reward_t = math.inf          # stamp of the first reward this process got
-        self.reward_t = -math.inf               # newest reward stamp (the watermark)
-        self.stop_t = -math.inf                 # newest stop of the arbiter
-        self.record_wall = -math.inf            # wall time the last record arrived
-        self.draws: deque = deque(maxlen=10000)  # (t, Pr(i|x), V_i) of the arbiter's draws
 
         self.pub_params = {name: self.create_publisher(JointState, f'{name}/params',
                                                        PARAMS_QOS) for name in self.names}
@@ -117,139 +106,86 @@ class LearnerNode(GraphNode):
             f'learner: condition {self.graph.condition}, modules {", ".join(self.names)}, '
             f'correction {self.clis.learner.correction}, out {self.out or "-"}')
 
+    @property
+    def version(self) -> int:
+        """Episodes learned (the parameters' version)."""
+        return self.stream.version
+
     # ------------------------------------------------------------------ streams
 
     def _on_proposal(self, msg: JointState) -> None:
         self.record_wall = time.monotonic()
         try:
-            p = mconv.proposal_from_msg(msg)
-            if not self.buffer.add_decision(p.module, p.t, p.b):
-                return                                      # a copy
+            self.stream.proposal(mconv.proposal_from_msg(msg))
         except (ValueError, KeyError) as exc:
             self.get_logger().error(f'ignored proposal: {exc}')
-            return
-        if self.episode is not None and p.t >= self.episode['t0'] - TIME_TOL \
-                and p.version != self.version:
-            self.episode['stale'] += 1
 
     def _on_action(self, msg: JointState) -> None:
         self.record_wall = time.monotonic()
-        t, u, acting = mconv.action_from_msg(msg)
-        if not acting:        # '' = a stop: nobody acts (the one at an episode's end comes
-            self.stop_t = max(self.stop_t, t)     # after all of that episode's actions)
-            return
-        if acting not in self.names:
+        try:
+            self.stream.action(*mconv.action_from_msg(msg))
+        except KeyError as exc:
             self.get_logger().error(
-                f'ignored an action of {acting!r}, not a module of condition '
+                f'ignored an action of {exc.args[0]!r}, not a module of condition '
                 f'{self.graph.condition} (another graph on this ROS_DOMAIN_ID?)',
                 throttle_duration_sec=5.0)
-            return
-        self.buffer.add_action(t, u, acting)
 
     def _on_selection(self, msg: JointState) -> None:
-        # kept by stamp: a draw may arrive before the episode's start event
         t, _, probs, values = mconv.selection_from_msg(msg)
-        self.draws.append((t, [probs.get(n, math.nan) for n in self.names],
-                           [values.get(n, math.nan) for n in self.names]))
-
-    def _first_draw(self, t0: float, t_end: float) -> tuple[list | None, list | None]:
-        """``Pr(i | x)`` and values of the episode's first draw (None if none arrived)."""
-        first = next(((p, v) for t, p, v in self.draws if t0 - TIME_TOL <= t <= t_end + TIME_TOL),
-                     (None, None))
-        while self.draws and self.draws[0][0] <= t_end + TIME_TOL:
-            self.draws.popleft()
-        return first
+        self.stream.selection(t, probs, values)
 
     def _on_reward(self, msg: Vector3Stamped) -> None:
         self.record_wall = time.monotonic()
         t, r, _ = rconv.reward_from_msg(msg)
-        self.first_reward_t = min(self.first_reward_t, t)
-        self.reward_t = max(self.reward_t, t)
-        self.buffer.add_reward(t, r)
+        self.stream.reward(t, r)
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
         t, event, values = rconv.episode_from_msg(msg)
         index = int(values.get('episode', -1))
         if event == 'start':
-            if self.closing is not None:
-                self._close()
-            self.episode = {'index': index, 't0': t, 'start': values.get('start', ''),
-                            'stale': 0}
+            closed = self.stream.start(t, index, values.get('start', ''))
+            if closed is not None:
+                self._closed(closed)
         elif event in END_EVENTS:
-            if self.episode is not None and self.episode['index'] == index:
-                now = time.monotonic()
-                self.closing = {'t_end': t, 'reached': event == 'reached', 'event': event,
-                                'return': float(values.get('episode_return', 'nan')),
-                                'deadline': now + self.cfg.close_timeout,
-                                'grace': now + self.cfg.close_grace}
-            else:                                 # its start was not seen: nothing to learn
-                self._progress({'episode': index, 'learned': 0, 'event': event}, t)
+            now = time.monotonic()
+            skipped = self.stream.end(t, index, event, now + self.cfg.close_timeout,
+                                      now + self.cfg.close_grace,
+                                      float(values.get('episode_return', 'nan')))
+            if skipped is not None:               # its start was not seen: nothing to learn
+                self._progress(skipped, t)
 
     def _on_wall(self) -> None:
-        c = self.closing
-        if c is None:
+        c = self.stream.closing
+        if c is not None:       # the timeout counts from the last record that arrived: a
+            # learner working through a backlog (a loaded machine) does not give up early
+            c['deadline'] = max(c['deadline'], self.record_wall + self.cfg.close_timeout)
+        close, missing = self.stream.due(time.monotonic(), on_grid=self.sim_time)
+        if not close:
             return
-        now = time.monotonic()
-        missing = self._missing_records(c['t_end'])
-        # the timeout counts from the last record that arrived: a learner working through a
-        # backlog (a loaded machine) does not give up while records still come in
-        if (not missing and now >= c['grace']) \
-                or now >= max(c['deadline'], self.record_wall + self.cfg.close_timeout):
-            if missing:
-                self.get_logger().warning(
-                    f'episode {self.episode["index"]}: {", ".join(missing)} did not arrive '
-                    f'within {self.cfg.close_timeout} s: learning from what did')
-            self._close()
-
-    def _missing_records(self, t_end: float) -> list[str]:
-        """What of the episode ending at ``t_end`` has not arrived yet: its last reward, the
-        arbiter's stop at its end (sent after all of its actions), and each module's last
-        decision ``t_0 + l tau_i < t_end`` (they travel on separate topics, and a run without
-        lockstep pauses only at the decision instants)."""
-        t0 = self.episode['t0']
-        missing = [] if self.reward_t >= t_end - TIME_TOL else ['the last reward']
-        if self.stop_t < t_end - TIME_TOL:
-            missing.append("the arbiter's stop")
-        for m in self.modules if self.sim_time else ():      # real time: off the grid
-            # decisions at t_0 + l tau_i
-            last = t0 + math.floor((t_end - t0 - TIME_TOL) / m.period + 1e-9) * m.period
-            if self.buffer.last_decision(m.name) < last - TIME_TOL:
-                missing.append(f'the decision of {m.name} at {last:.3f} s')
-        return missing
+        if missing:
+            self.get_logger().warning(
+                f'episode {self.stream.episode["index"]}: {", ".join(missing)} did not arrive '
+                f'within {self.cfg.close_timeout} s: learning from what did')
+        self._closed(self.stream.close())
 
     # ------------------------------------------------------------------ learning
 
-    def _close(self) -> None:
-        ep, c = self.episode, self.closing
-        self.episode = self.closing = None
-        mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory)
-        probs, values = self._first_draw(ep['t0'], c['t_end'])
-        # every reward of the episode arrived iff they sum to the simulator's return
-        ret = float(mem.rewards()[1].sum())
-        complete = not abs(ret - c['return']) > 1e-6           # NaN: the sim did not say
-        if not complete:
+    def _closed(self, closed: Closed) -> None:
+        """After an episode: checkpoint, parameters, CSV row, progress (module docstring)."""
+        if not closed.row['complete']:
             self.get_logger().warning(
-                f'episode {ep["index"]}: the rewards received sum to {ret:.3f}, the '
-                f'simulator says {c["return"]:.3f}: reward messages were lost (learning '
-                'from it anyway; `complete` = 0 in episodes.csv)')
-        # learn only from episodes recorded from their start
-        learnable = self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
-        diag = self.learner.learn(mem) if learnable else {}
-        if learnable:
-            self.version += 1
+                f'episode {closed.episode}: the rewards received sum to '
+                f'{closed.row["ret"]:.3f}, the simulator says {closed.sim_return:.3f}: reward '
+                'messages were lost (learning from it anyway; `complete` = 0 in episodes.csv)')
+        if closed.learned:
             if self.out is not None:
                 save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,
-                                {'version': self.version, 'episode': ep['index'],
+                                {'version': self.version, 'episode': closed.episode,
                                  'condition': self.graph.condition, 'seed': self.graph.seed})
-            self._publish_params(c['t_end'])
-        row = {'label': self.graph.condition, 'condition': self.graph.condition,
-               'seed': self.graph.seed, 'phase': 'train', 'episode': ep['index'],
-               **episode_row(mem, self.names, probs, values, diag, ep['start']),
-               'event': c['event'], 'learned': int(learnable), 'version': self.version,
-               'stale_decisions': ep['stale'], 'complete': int(complete), 't_end': c['t_end']}
-        if learnable and self.out is not None:
-            self._append_csv(row)
-        self._progress(row, c['t_end'])
+            self._publish_params(closed.t_end)
+            if self.out is not None:
+                self._append_csv(closed.row)
+        self._progress(closed.row, closed.t_end)
 
     def _publish_params(self, t: float) -> None:
         for m in self.modules:
