@@ -5,7 +5,12 @@ processes, lockstep, every module timer firing) and observes it from this proces
 ``--seconds`` of wall time after the first learned episode:
 
 - real-time factor: sim seconds per wall second (``/clock``), learner pauses included;
-- CPU per node: user + system time of each child process over the window, in % of one core;
+- CPU per node: user + system time of each child process over the window, in % of one core,
+  and per simulated second (CPU-s / sim-s, summed over the graph's processes and per node): the
+  load-insensitive measure of the graph's cost. On an idle 2-core machine the graph is
+  CPU-bound, so its real-time factor is about 2 / (summed CPU-s per sim-s); on a shared or
+  loaded machine the real-time factor and the latency say little, the CPU per sim-second
+  still compares two versions;
 - latency: for every instant, wall time from the arrival of the readings (``wheels``, stamped
   t) to the arrival of the ``cmd_vel`` stamped t (both seen by this process), p50 / p99;
   at the instants where a module decides this includes that module's decision;
@@ -14,6 +19,10 @@ processes, lockstep, every module timer firing) and observes it from this proces
   idle module node (no ``/clock``) with the EventsExecutor and the SingleThreadedExecutor.
 
     python bench/bench_graph.py [--seconds 30] [--json FILE]
+    python bench/bench_graph.py --cpu-only [--cpus 1]   # CPU per sim-second of the processes
+
+``--cpus LIST`` pins the graph (``taskset``) to those cores: on a shared machine, compare two
+versions pinned the same way.
 """
 
 from __future__ import annotations
@@ -54,7 +63,8 @@ def children(pid: int) -> dict[str, int]:
     return found
 
 
-def measure(seconds: float, single: bool, executor: str = 'single') -> dict:
+def measure(seconds: float, single: bool, executor: str = 'single',
+            cpus: str = '') -> dict:
     from geometry_msgs.msg import TwistStamped
     import rclpy
     from rosgraph_msgs.msg import Clock
@@ -69,6 +79,8 @@ def measure(seconds: float, single: bool, executor: str = 'single') -> dict:
         params = out / 'executor.yaml'
         params.write_text(f'/**:\n  ros__parameters:\n    graph:\n      executor: {executor}\n')
         cmd += ['--params', str(params)]
+    if cpus:
+        cmd = ['taskset', '-c', cpus, *cmd]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     rclpy.init()
     node = rclpy.create_node('bench_graph')
@@ -93,11 +105,13 @@ def measure(seconds: float, single: bool, executor: str = 'single') -> dict:
         for d in seen.values():
             d.clear()
         clock.clear()
+        load = os.getloadavg()[0]
         t0 = time.monotonic()
         while time.monotonic() - t0 < seconds:
             rclpy.spin_once(node, timeout_sec=0.01)
         wall = time.monotonic() - t0
-        cpu = {name: 100 * (cpu_seconds(pid) - cpu0[name]) / wall for name, pid in pids.items()}
+        used = {name: cpu_seconds(pid) - cpu0[name] for name, pid in pids.items()}
+        cpu = {name: 100 * c / wall for name, c in used.items()}
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
@@ -110,8 +124,11 @@ def measure(seconds: float, single: bool, executor: str = 'single') -> dict:
     # episodes (and any stall)
     gaps = np.diff([w for _, w in clock]) if len(clock) > 1 else np.zeros(0)
     steps = np.diff(sorted({round(t, 6) for t, _ in clock}))
+    per_sim = {name: c / sim for name, c in used.items()} if sim > 0 else {}
     return {'single_process': single, 'executor': executor, 'wall_s': wall, 'sim_s': sim,
             'rtf': sim / wall, 'paused_s': float(gaps[gaps > 0.02].sum()),
+            'load_avg_1min': load, 'cpus': cpus or 'all',
+            'cpu_s_per_sim_s': per_sim, 'cpu_s_per_sim_s_total': sum(per_sim.values()),
             'tick_wall_ms_p50': float(np.median(gaps) * 1e3) if gaps.size else None,
             'ticks': int(steps.size),
             'cpu_percent': cpu, 'instants': int(lat.size),
@@ -141,17 +158,36 @@ def ms(x: float | None) -> str:
     return 'n/a' if x is None else f'{x:.2f} ms'
 
 
+def cpu_line(r: dict) -> str:
+    """CPU-s per sim-s, summed and per node."""
+    return (f'{r["cpu_s_per_sim_s_total"]:.3f} CPU-s per sim-s ('
+            + ', '.join(f'{k} {v:.3f}' for k, v in r['cpu_s_per_sim_s'].items()) + ')')
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--seconds', type=float, default=30.0)
     ap.add_argument('--json', metavar='FILE')
+    ap.add_argument('--cpu-only', action='store_true',
+                    help='only the graph as processes: CPU per sim-second (and what else '
+                         'that run gives)')
+    ap.add_argument('--cpus', default='', metavar='LIST',
+                    help='pin the graph to these cores (taskset -c LIST)')
     args = ap.parse_args()
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
-    multi = measure(args.seconds, single=False)
-    single = measure(args.seconds, single=True)
-    events_run = measure(args.seconds, single=False, executor='events')
+    multi = measure(args.seconds, single=False, cpus=args.cpus)
+    if args.cpu_only:
+        print(f'processes (cores {multi["cpus"]}, load {multi["load_avg_1min"]:.1f}): '
+              f'{cpu_line(multi)}; real-time factor {multi["rtf"]:.1f}x, latency p50 '
+              f'{ms(multi["latency_ms_p50"])} p99 {ms(multi["latency_ms_p99"])} over '
+              f'{multi["instants"]} instants')
+        if args.json:
+            Path(args.json).write_text(json.dumps({'processes': multi}, indent=1))
+        return 0
+    single = measure(args.seconds, single=True, cpus=args.cpus)
+    events_run = measure(args.seconds, single=False, executor='events', cpus=args.cpus)
     events, default = idle_cpu('events'), idle_cpu('single')
     for r in (multi, single, events_run):
         print(f'{"one process" if r["single_process"] else "processes  "} ({r["executor"]} '
@@ -160,7 +196,8 @@ def main() -> int:
               f'{r["paused_s"]:.1f} s of it paused between episodes), latency p50 '
               f'{ms(r["latency_ms_p50"])} p99 {ms(r["latency_ms_p99"])} over '
               f'{r["instants"]} instants; CPU % of a core: '
-              + ', '.join(f'{k} {v:.0f}' for k, v in r['cpu_percent'].items()))
+              + ', '.join(f'{k} {v:.0f}' for k, v in r['cpu_percent'].items())
+              + (f'; {cpu_line(r)}' if r['sim_s'] > 0 else ''))
     print(f'idle module node CPU: EventsExecutor {events:.0f}%, SingleThreadedExecutor '
           f'{default:.0f}%')
     if args.json:
@@ -182,6 +219,10 @@ def main() -> int:
                  'value': f'{multi["paused_s"]:.1f} s | {single["paused_s"]:.1f} s of '
                           f'{multi["wall_s"]:.0f} s'},
                 {'measure': 'CPU per node, % of one core (processes)', 'value': cpu},
+                {'measure': 'CPU-s per sim-s, all processes (per node)',
+                 'value': cpu_line(multi)},
+                {'measure': 'CPU-s per sim-s, one process', 'value':
+                 f'{single["cpu_s_per_sim_s_total"]:.3f}' if single['sim_s'] > 0 else 'n/a'},
                 {'measure': 'Async graph real-time factor, processes: EventsExecutor | '
                             'SingleThreadedExecutor',
                  'value': f'{events_run["rtf"]:.1f}x | {multi["rtf"]:.1f}x'},
