@@ -20,6 +20,13 @@ restarts gets them at once; ``version`` = episodes learned), the episode's row i
 transient local: episode, reached, return, who acted, Pr(i|x_0), diagnostics). An episode whose
 start the learner did not see (it started late or was restarted) is not learned; its progress
 says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint.
+
+Wakeups: the rewards (one per tick) are taken from their queue when another record arrives
+(at least one per decision instant), every 0.1 s of wall time, and while an ended episode
+waits for its records (every 5 ms), not one by one
+(:class:`~clis_modules.graph_node.OnDemand`); the learner reads no clock, so under sim time it
+takes ``/clock`` only on demand too (never). It is woken by the decisions, the actions and the
+episode events, not at every tick.
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ from pathlib import Path
 import time
 
 from clis_modules.core.modules import arena_map, make_modules
-from clis_modules.graph_node import GraphNode, run_node
+from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from clis_modules.module_node import END_EVENTS, LATCHED, PARAMS_QOS
 from cr_sim.core.params import ConfigError, dataclass, param
 from diagnostic_msgs.msg import DiagnosticArray
@@ -96,9 +103,17 @@ class LearnerNode(GraphNode):
         self.create_subscription(JointState, 'arbiter/action', self._on_action, rconv.STREAM_DEPTH)
         self.create_subscription(JointState, 'arbiter/selection', self._on_selection,
                                  rconv.STREAM_DEPTH)
-        self.create_subscription(Vector3Stamped, 'reward', self._on_reward, rconv.STREAM_DEPTH)
+        # the rewards wait in their queue (1000 deep: 50 s of sim time) until taken (docstring)
+        self.sub_reward = self.create_subscription(Vector3Stamped, 'reward', self._on_reward,
+                                                   rconv.STREAM_DEPTH,
+                                                   callback_group=OnDemand())
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
-        self.create_timer(0.005, self._on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(0.1, self._on_wall, clock=steady)
+        # while an ended episode waits for its records
+        self.closer = self.create_timer(0.005, self._on_wall, clock=steady)
+        self.closer.cancel()
+        self.clock_on_demand()
         self._publish_params(0.0)
         # "up": the simulator's learner gate starts the first episode on this report
         self._progress({'episode': 0, 'learned': 0, 'event': 'ready'}, 0.0)
@@ -113,7 +128,14 @@ class LearnerNode(GraphNode):
 
     # ------------------------------------------------------------------ streams
 
+    def _take_rewards(self) -> None:
+        """Take the rewards waiting in their queue."""
+        msgs = take_all(self.sub_reward)
+        for msg in msgs:
+            self._on_reward(msg)
+
     def _on_proposal(self, msg: JointState) -> None:
+        self._take_rewards()
         self.record_wall = time.monotonic()
         try:
             self.stream.proposal(mconv.proposal_from_msg(msg))
@@ -121,6 +143,7 @@ class LearnerNode(GraphNode):
             self.get_logger().error(f'ignored proposal: {exc}')
 
     def _on_action(self, msg: JointState) -> None:
+        self._take_rewards()
         self.record_wall = time.monotonic()
         try:
             self.stream.action(*mconv.action_from_msg(msg))
@@ -140,6 +163,7 @@ class LearnerNode(GraphNode):
         self.stream.reward(t, r)
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
+        self._take_rewards()
         t, event, values = rconv.episode_from_msg(msg)
         index = int(values.get('episode', -1))
         if event == 'start':
@@ -153,12 +177,18 @@ class LearnerNode(GraphNode):
                                       float(values.get('episode_return', 'nan')))
             if skipped is not None:               # its start was not seen: nothing to learn
                 self._progress(skipped, t)
+            elif self.stream.closing is not None:
+                self.closer.reset()               # wait for its records
 
     def _on_wall(self) -> None:
+        self._take_rewards()
         c = self.stream.closing
-        if c is not None:       # the timeout counts from the last record that arrived: a
-            # learner working through a backlog (a loaded machine) does not give up early
-            c['deadline'] = max(c['deadline'], self.record_wall + self.cfg.close_timeout)
+        if c is None:
+            self.closer.cancel()
+            return
+        # the timeout counts from the last record that arrived: a learner working through a
+        # backlog (a loaded machine) does not give up early
+        c['deadline'] = max(c['deadline'], self.record_wall + self.cfg.close_timeout)
         close, missing = self.stream.due(time.monotonic(), on_grid=self.sim_time)
         if not close:
             return
@@ -167,6 +197,7 @@ class LearnerNode(GraphNode):
                 f'episode {self.stream.episode["index"]}: {", ".join(missing)} did not arrive '
                 f'within {self.cfg.close_timeout} s: learning from what did')
         self._closed(self.stream.close())
+        self.closer.cancel()
 
     # ------------------------------------------------------------------ learning
 

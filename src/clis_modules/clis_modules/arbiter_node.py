@@ -9,12 +9,18 @@ it executes the acting module's proposal clipped to that module's speed limit; a
 latest proposal is older than ``arbiter.stale_periods`` of its periods is dropped from the
 selection (another one is drawn), and with none fresh the robot is commanded to stop.
 
-Lockstep (under sim time, ``arbiter_node.lockstep``): the arbiter answers every instant of the
-clock: once every decision due at that instant has been proposed (at most
-``arbiter_node.lockstep_timeout`` wall seconds, then the late module counts as missing), the
-Selector gets them together, as in the headless runner, and ``cmd_vel`` is sent stamped with
-the instant even if the command did not change; a simulator in lockstep (``node.lockstep``)
-waits for it before the next tick (:mod:`clis_modules.core.lockstep`).
+Lockstep (under sim time, ``arbiter_node.lockstep``): the arbiter answers every decision
+instant ``t_0 + l tau_i`` of the condition's modules: once every decision due at that instant
+has been proposed (at most ``arbiter_node.lockstep_timeout`` wall seconds, then the late module
+counts as missing), the Selector gets them together, as in the headless runner, and
+``cmd_vel`` is sent stamped with the instant even if the command did not change; a simulator in
+lockstep (``node.lockstep``, holding at the same instants) waits for it before the next tick
+(:mod:`clis_modules.core.lockstep`). Between two decision instants the command cannot change
+and the simulator does not wait: they get no ``cmd_vel``. In lockstep the arbiter takes
+``/clock`` on demand (:meth:`~clis_modules.graph_node.GraphNode.clock_on_demand`): an
+instant opens when a proposal stamped with it arrives, or when the clock, read at every
+proposal and every 10 ms of wall time, stands at it (an instant whose due modules are all
+missing), so the arbiter is not woken at every tick.
 
 Publishes ``cmd_vel`` (geometry_msgs/TwistStamped stamped with the time of the sensor readings
 the command was decided on; plain Twist with ``arbiter_node.cmd_vel_stamped:=false``),
@@ -102,8 +108,10 @@ class ArbiterNode(GraphNode):
         self.barrier = None
         self.u_exec = np.zeros(2)                    # the command in force
         self.sent = None                             # (cmd_vel, stamp, wall time) sent last
+        self._advancing = False
         if self.cfg.lockstep and self.sim_time:
             self.barrier = TickBarrier(names, taus, self.cfg.lockstep_timeout)
+            self.clock_on_demand()
             self.on_clock_advance(self._on_tick)
             self.create_timer(0.01, self._advance, clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
@@ -143,6 +151,11 @@ class ArbiterNode(GraphNode):
             self.get_logger().error(f'ignored non-finite proposal of {p.module}')
             return
         if self.barrier is not None:
+            if self._clock_sub is not None:
+                self.take_clock()                    # (may open the instant: _on_tick)
+            # a proposal of instant t: the clock has reached it
+            if self.barrier.is_instant(p.t):
+                self.barrier.on_tick(p.t, time.monotonic())
             self.barrier.on_proposal(p)
             self._advance()
         else:
@@ -161,12 +174,23 @@ class ArbiterNode(GraphNode):
         self._publish(self.selector.check(self.now_s()))
 
     def _on_tick(self, t: float) -> None:
-        self.barrier.on_tick(t, time.monotonic())
-        self._advance()
+        if self.barrier.is_instant(t):               # between two the clock does not wait
+            self.barrier.on_tick(t, time.monotonic())
+            if not self._advancing:
+                self._advance()
 
     def _advance(self) -> None:
         """Answer the instants whose due decisions are in (lockstep); send the last answer
         again while the clock stands at its instant (the simulator did not get it)."""
+        self._advancing = True
+        try:
+            self._answer()
+        finally:
+            self._advancing = False
+
+    def _answer(self) -> None:
+        if self._clock_sub is not None:
+            self.take_clock()                        # (may open an instant: _on_tick)
         now = time.monotonic()
         if self.sent is not None and self.barrier.running \
                 and now - self.sent[2] >= self.cfg.resend_period \

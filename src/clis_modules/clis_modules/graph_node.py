@@ -10,6 +10,14 @@ bad value stops the node (exit code 2) with a message naming the key and its ran
 Time: graph nodes follow ``/clock`` (``use_sim_time`` true) unless told otherwise, since the
 robot interface (simulator or bridge) publishes it; decisions, staleness and episode times are
 all in that clock.
+
+Wakeups: under sim time the graph runs many times faster than real time, and what a node costs
+is mostly the executor's work per wakeup (rclpy rebuilds its wait set in Python every time), so
+a stream that a node needs only at some instants is taken *on demand*: its subscription is in
+an :class:`OnDemand` callback group, its messages wait in their DDS queue, and the node takes
+them (:func:`take_all`) when it needs them, or lets the executor wake it for them while it
+waits for one (``group.active``). :meth:`GraphNode.clock_on_demand` does this for ``/clock``
+in a node that reads its clock only now and then (the learner, the arbiter).
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 import rclpy
+from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -32,7 +41,8 @@ from rclpy.qos import LivelinessPolicy, QoSProfile
 
 from clis_modules.core.modules import CONDITIONS, ModuleSetParams
 
-__all__ = ['GraphParams', 'GraphNode', 'make_executor', 'proposal_qos', 'run_node']
+__all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qos', 'run_node',
+           'take_all']
 
 EXECUTORS = ('events', 'single')
 
@@ -64,6 +74,39 @@ def proposal_qos(lease: float, depth: int = STREAM_DEPTH) -> QoSProfile:
     """
     return QoSProfile(depth=depth, liveliness=LivelinessPolicy.AUTOMATIC,
                       liveliness_lease_duration=Duration(seconds=lease))
+
+
+class OnDemand(CallbackGroup):
+    """A callback group whose entities the executor waits on only while :attr:`active`.
+
+    The messages of a subscription in it stay in the subscription's queue (its QoS depth)
+    until the node takes them with :func:`take_all`, so the node is not woken for each one.
+    Set ``active`` while the node waits for a message it needs: the executor then runs the
+    subscription's callback as usual.
+    """
+
+    def __init__(self, active: bool = False) -> None:
+        super().__init__()
+        self.active = active
+
+    def can_execute(self, entity) -> bool:
+        return self.active
+
+    def beginning_execution(self, entity) -> bool:
+        return self.active
+
+    def ending_execution(self, entity) -> None:
+        pass
+
+
+def take_all(sub) -> list:
+    """Every message waiting in subscription ``sub``'s queue, oldest first, taken now (as the
+    executor takes them, without running the callback)."""
+    out = []
+    with sub.handle:
+        while (taken := sub.handle.take_message(sub.msg_type, sub.raw)) is not None:
+            out.append(taken[0])
+    return out
 
 
 class GraphNode(Node):
@@ -106,6 +149,7 @@ class GraphNode(Node):
         self.cfg = (build(section_cls, values.pop(section), where=section)
                     if section is not None else None)
         self.clis = build(clis_cls, values, where='clis')
+        self._clock_sub = None                   # /clock taken on demand (clock_on_demand)
 
     def arena(self) -> Arena:
         """The arena of ``graph.arena_file``."""
@@ -113,7 +157,28 @@ class GraphNode(Node):
 
     def now_s(self) -> float:
         """The node's clock (sim time under ``/clock``) in seconds."""
+        if self._clock_sub is not None:
+            self.take_clock()
         return self.get_clock().now().nanoseconds * 1e-9
+
+    def clock_on_demand(self) -> None:
+        """Under sim time, take ``/clock`` only when the node reads its clock (:meth:`now_s`,
+        :meth:`take_clock`) instead of being woken for every message: for a node whose
+        callbacks are driven by other topics and wall timers (no sim-time timer of its own).
+        The clock then moves, and :meth:`on_clock_advance` callbacks run, when it is read."""
+        sub = getattr(getattr(self, '_time_source', None), '_clock_sub', None)
+        if sub is None or not self.sim_time:
+            return
+        group = OnDemand()
+        sub.callback_group = group
+        group.add_entity(sub)
+        self._clock_sub = sub
+
+    def take_clock(self) -> None:
+        """Bring the clock to the newest ``/clock`` waiting (:meth:`clock_on_demand`)."""
+        msgs = take_all(self._clock_sub)
+        if msgs:
+            self._time_source.clock_callback(msgs[-1])
 
     @property
     def sim_time(self) -> bool:

@@ -10,6 +10,13 @@ sigma, V_i(x), features, stamped with the time of the sensor readings it used; l
 :mod:`clis_modules.conversions`). The place module also publishes its belief on ``~/belief``
 (nav_msgs/OccupancyGrid, marginal over heading).
 
+The readings are taken when a decision is due, not as they arrive
+(:class:`~clis_modules.graph_node.OnDemand`): they wait in their subscriptions' queues
+(:data:`READINGS_DEPTH` deep, more than the ticks of the longest period) and the module takes
+them all at its decision instant; only if those of the instant have not arrived yet does the
+executor wake the module for them. A module is so woken once per tick (``/clock``) and at its
+decisions, not for every reading of every topic.
+
 Episodes (``episode`` events of the robot interface): at a ``start`` the module forgets its
 state (the place module's belief becomes uniform), decides at once on the first readings of
 the new episode, and restarts its timer, so that its decisions fall at ``t_0 + l tau_i`` as in
@@ -41,7 +48,7 @@ from sensor_msgs.msg import JointState, LaserScan
 from clis_modules import conversions as conv
 from clis_modules.core.decider import Decider, Percept
 from clis_modules.core.modules import MODULE_NAMES, arena_map, condition_periods, make_module
-from clis_modules.graph_node import GraphNode, run_node
+from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from cr_sim import conversions as rconv
 
 __all__ = ['ModuleNodeParams', 'ModuleNode', 'main', 'main_innate', 'main_view', 'main_place']
@@ -54,6 +61,9 @@ STALL_WARNING = 2.0
 LATCHED = QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PARAMS_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 END_EVENTS = ('reached', 'timeout', 'reset')
+#: Queue depth of the ``camera`` and ``ir`` subscriptions, taken at the decision instants: more
+#: than the ticks of the longest period (1.2 s = 24 ticks of 50 ms).
+READINGS_DEPTH = 50
 
 
 @dataclass(frozen=True)
@@ -95,8 +105,8 @@ class ModuleNode(GraphNode):
         self.ended_t = -math.inf
         self.last_grid = -math.inf
         self.marked = -math.inf                 # the grid instant last marked due
-        self.camera: deque = deque(maxlen=20)   # (stamp, dest bearing, landmark bearings)
-        self.ir: deque = deque(maxlen=20)       # (stamp, d_o)
+        self.camera: deque = deque(maxlen=READINGS_DEPTH)  # (stamp, dest, landmark bearings)
+        self.ir: deque = deque(maxlen=READINGS_DEPTH)      # (stamp, d_o)
         self.wheels: deque = deque(maxlen=2000)  # (stamp, v_left, v_right)
         self.wheels_t = -math.inf               # stamp of the last wheels reading used
         self.landmarks = [lm.name for lm in arena.landmarks]
@@ -104,11 +114,18 @@ class ModuleNode(GraphNode):
         self.pub = self.create_publisher(JointState, '~/proposal', self.graph.proposal_qos())
         self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
                            if self.decider.localizes else None)
-        self.create_subscription(JointState, 'camera', self._on_camera, 10)
-        self.create_subscription(LaserScan, 'ir', self._on_ir, 10)
+        # the readings, taken at the decision instants (module docstring)
+        self.on_demand = OnDemand()
+        self.readings = [(self.create_subscription(JointState, 'camera', self._on_camera,
+                                                   READINGS_DEPTH, callback_group=self.on_demand),
+                          self._add_camera),
+                         (self.create_subscription(LaserScan, 'ir', self._on_ir, READINGS_DEPTH,
+                                                   callback_group=self.on_demand),
+                          self._add_ir)]
         if self.decider.localizes:
-            self.create_subscription(JointState, 'wheels', self._on_wheels,
-                                     rconv.STREAM_DEPTH)
+            self.readings.append((self.create_subscription(
+                JointState, 'wheels', self._on_wheels, rconv.STREAM_DEPTH,
+                callback_group=self.on_demand), self._add_wheels))
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.create_subscription(JointState, '~/params', self._on_params, PARAMS_QOS)
         self.timer = self.create_timer(self.period, self._on_timer)
@@ -122,22 +139,38 @@ class ModuleNode(GraphNode):
 
     # ------------------------------------------------------------------ inputs
 
-    def _on_camera(self, msg: JointState) -> None:
+    def _add_camera(self, msg: JointState) -> None:
         t, bearings = rconv.bearings_from_msg(msg)
         lm = np.array([bearings.get(name, math.nan) for name in self.landmarks])
         self.camera.append((t, bearings.get('destination', math.nan), lm))
-        self._try_decide()
 
-    def _on_ir(self, msg: LaserScan) -> None:
+    def _add_ir(self, msg: LaserScan) -> None:
         t, ranges = rconv.ir_from_msg(msg)
         self.ir.append((t, float(np.min(ranges)) if ranges.size else math.inf))
-        self._try_decide()
 
-    def _on_wheels(self, msg: JointState) -> None:
+    def _add_wheels(self, msg: JointState) -> None:
         t, v = rconv.wheels_from_msg(msg)
         if v.size == 2:
             self.wheels.append((t, float(v[0]), float(v[1])))
-            self._try_decide()
+
+    def _take_readings(self) -> None:
+        """Take every reading waiting in the subscriptions' queues (in arrival order)."""
+        for sub, add in self.readings:
+            for msg in take_all(sub):
+                add(msg)
+
+    # woken for a reading (only while a due decision waits for the readings of its instant)
+    def _on_camera(self, msg: JointState) -> None:
+        self._add_camera(msg)
+        self._try_decide()
+
+    def _on_ir(self, msg: LaserScan) -> None:
+        self._add_ir(msg)
+        self._try_decide()
+
+    def _on_wheels(self, msg: JointState) -> None:
+        self._add_wheels(msg)
+        self._try_decide()
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
         t, event, values = rconv.episode_from_msg(msg)
@@ -197,6 +230,7 @@ class ModuleNode(GraphNode):
 
     def _on_wall(self) -> None:
         now = time.monotonic()
+        self._take_readings()                   # the queues stay short between decisions
         self._check_stall(now)
         # under sim time the clock stands at the instant of the last proposal until the
         # arbiter has it: send it again if that takes long (lost while the graph connected)
@@ -296,8 +330,12 @@ class ModuleNode(GraphNode):
 
     def _try_decide(self) -> None:
         if not self.due or self.t0 is None or self.decider.version < self.expect_version:
+            self.on_demand.active = False
             return
+        self._take_readings()
         found = self._readings()
+        # until the readings of the instant are in, the executor wakes the module for them
+        self.on_demand.active = True
         if found is None:
             return
         t, dest, lm, d_o = found
@@ -306,6 +344,7 @@ class ModuleNode(GraphNode):
         if self.decider.localizes and self.sim_time and self.wheels_t < t - _TOL \
                 and not (self.wheels and self.wheels[-1][0] >= t - _TOL):
             return
+        self.on_demand.active = False
         # odometry: the wheel velocities of every step that ended after the last reading
         # used, up to this one (each held since the previous reading)
         while self.wheels and self.wheels[0][0] <= t + _TOL:

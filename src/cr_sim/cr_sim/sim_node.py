@@ -32,6 +32,9 @@ from cr_sim.core.starts import draw_start
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 
 START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
+#: Between the instants a lockstep holds at, callbacks (a reset, a command) are served every
+#: this many ticks (each serving costs a wait of the executor: :attr:`SimNode.quiet`).
+QUIET_SPIN = 5
 
 
 @dataclass(frozen=True)
@@ -115,6 +118,7 @@ class SimNode(Node):
             (self.arena.destination.x, self.arena.destination.y,
              self.arena.destination.goal_radius), self.cfg.map_frame))
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
+        self.ir_angles = np.deg2rad(self.params.sensors.ir_angles_deg)
         if self.gate.first(time.monotonic()):
             self._start_episode()
         self.get_logger().info(
@@ -170,6 +174,15 @@ class SimNode(Node):
         self._publish_state()
 
     @property
+    def quiet(self) -> bool:
+        """Lockstep at the decision instants only, clock running: until the next instant the
+        clock waits for no message (the controller's command cannot change before it), so
+        :func:`run` serves callbacks only every :data:`QUIET_SPIN` ticks."""
+        g = self.gate
+        return g.lockstep and not g.free and bool(g.hold_periods) \
+            and 0.0 not in g.hold_periods
+
+    @property
     def holding(self) -> bool:
         """Whether the clock stands still (:class:`~cr_sim.core.gate.EpisodeGate`)."""
         return self.gate.holding
@@ -214,18 +227,20 @@ class SimNode(Node):
         frame = self.cfg.base_frame
         sensors = self.params.sensors
         self._last = [
-            (self.pub_ir, conv.ir_msg(obs.ir, np.deg2rad(sensors.ir_angles_deg),
-                                      sensors.ir_range, t, frame)),
+            (self.pub_ir, conv.ir_msg(obs.ir, self.ir_angles, sensors.ir_range, t, frame)),
             (self.pub_camera, conv.bearings_msg(
                 self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame)),
-            (self.pub_wheels, conv.wheels_msg(obs.wheels, t, frame)),
-            (self.pub_odom, conv.odom_msg(self.sim.pose, obs.wheels, self.wheel_base, t,
-                                          self.cfg.map_frame, frame)),
-            (self.pub_clock, conv.clock_msg(t))]
+            (self.pub_wheels, conv.wheels_msg(obs.wheels, t, frame))]
+        # display only (ground truth, never a module input): built only for a subscriber
+        if self.pub_odom.get_subscription_count():
+            self._last.append((self.pub_odom, conv.odom_msg(
+                self.sim.pose, obs.wheels, self.wheel_base, t, self.cfg.map_frame, frame)))
+        self._last.append((self.pub_clock, conv.clock_msg(t)))
         if t >= self.next_marker_t - 1e-6:   # sim_time sums floats: 0.1 may be 0.0999999
             self.next_marker_t = t + self.cfg.markers_period
-            self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
-                self.sim.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
+            if self.pub_markers.get_subscription_count():
+                self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
+                    self.sim.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
         self._resend()
         self.gate.published(t, time.monotonic())
 
@@ -244,6 +259,7 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     """Pace the simulator at ``speed_factor`` x real time while serving callbacks."""
     period = node.dt / node.cfg.speed_factor if node.cfg.speed_factor > 0 else 0.0
     next_wall = time.monotonic()
+    ticks = 0
     while rclpy.ok():
         if node.holding:                  # the clock stands still (learner gate, lockstep)
             executor.spin_once(timeout_sec=0.005)
@@ -257,8 +273,9 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
                 continue
             # released by the command just taken: the next tick at once (the graph's
             # callbacks of this instant all ran before that command)
-        else:
+        elif not node.quiet or ticks % QUIET_SPIN == 0:
             executor.spin_once(timeout_sec=0.0)
+        ticks += 1
         now = time.monotonic()
         if now < next_wall:
             executor.spin_once(timeout_sec=next_wall - now)

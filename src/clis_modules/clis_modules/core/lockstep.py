@@ -52,6 +52,7 @@ class TickBarrier:
         self.last = np.full(len(self.names), -math.inf)   # newest proposal stamp per module
         self.inbox: list[Proposal] = []
         self.open: list[tuple[float, float]] = []         # (instant, wall deadline)
+        self.reached = -math.inf                          # the newest instant opened
 
     def begin_episode(self, t0: float) -> None:
         """An episode starts at ``t0``: instants before it are answered by nobody."""
@@ -63,9 +64,20 @@ class TickBarrier:
         self.running = False
 
     def on_tick(self, t: float, now: float) -> None:
-        """The clock reached instant ``t`` (wall time ``now``)."""
-        if not self.open or t > self.open[-1][0] + _TOL:
+        """The clock reached instant ``t`` (wall time ``now``); an instant already opened
+        (and maybe answered) is not opened again."""
+        if t > self.reached + _TOL:
+            self.reached = float(t)
             self.open.append((float(t), now + self.timeout))
+
+    def is_instant(self, t: float) -> bool:
+        """Whether ``t`` is a decision instant ``t_0 + l tau_i`` of the running episode for
+        some module (missing or not): the instants a simulator in lockstep holds its clock at
+        (between two, the command cannot change and nobody waits for it)."""
+        if not self.running or t < self.t0 - _TOL:
+            return False
+        steps = (t - self.t0) / self.periods
+        return bool((np.abs(steps - np.round(steps)) * self.periods <= _TOL).any())
 
     def on_proposal(self, p: Proposal) -> bool:
         """Take a proposal; False (ignored) for a copy or an older one of the same module
