@@ -5,6 +5,8 @@ processes, lockstep, every module timer firing) and observes it from this proces
 ``--seconds`` of wall time after the first learned episode:
 
 - real-time factor: sim seconds per wall second (``/clock``), learner pauses included;
+- wakeups per sim-second of each node (voluntary context switches of its main thread, the
+  executor's);
 - CPU per node: user + system time of each child process over the window, in % of one core,
   and per simulated second (CPU-s / sim-s, summed over the graph's processes and per node): the
   load-insensitive measure of the graph's cost. On an idle 2-core machine the graph is
@@ -49,6 +51,15 @@ TICK = os.sysconf('SC_CLK_TCK')
 def cpu_seconds(pid: int) -> float:
     fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / TICK
+
+
+def wakeups(pid: int) -> int:
+    """Voluntary context switches of the process's main thread (its executor): how often it
+    went to sleep waiting, i.e. about how often it was woken."""
+    for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+        if line.startswith('voluntary_ctxt_switches'):
+            return int(line.split()[1])
+    return 0
 
 
 def children(pid: int) -> dict[str, int]:
@@ -102,6 +113,7 @@ def measure(seconds: float, single: bool, executor: str = 'single',
             rclpy.spin_once(node, timeout_sec=0.05)
         pids = {'clis run': proc.pid} if single else children(proc.pid)
         cpu0 = {name: cpu_seconds(pid) for name, pid in pids.items()}
+        wake0 = {name: wakeups(pid) for name, pid in pids.items()}
         for d in seen.values():
             d.clear()
         clock.clear()
@@ -111,6 +123,7 @@ def measure(seconds: float, single: bool, executor: str = 'single',
             rclpy.spin_once(node, timeout_sec=0.01)
         wall = time.monotonic() - t0
         used = {name: cpu_seconds(pid) - cpu0[name] for name, pid in pids.items()}
+        woke = {name: wakeups(pid) - wake0[name] for name, pid in pids.items()}
         cpu = {name: 100 * c / wall for name, c in used.items()}
     finally:
         node.destroy_node()
@@ -129,6 +142,7 @@ def measure(seconds: float, single: bool, executor: str = 'single',
             'rtf': sim / wall, 'paused_s': float(gaps[gaps > 0.02].sum()),
             'load_avg_1min': load, 'cpus': cpus or 'all',
             'cpu_s_per_sim_s': per_sim, 'cpu_s_per_sim_s_total': sum(per_sim.values()),
+            'wakeups_per_sim_s': {name: w / sim for name, w in woke.items()} if sim > 0 else {},
             'tick_wall_ms_p50': float(np.median(gaps) * 1e3) if gaps.size else None,
             'ticks': int(steps.size),
             'cpu_percent': cpu, 'instants': int(lat.size),
@@ -161,7 +175,9 @@ def ms(x: float | None) -> str:
 def cpu_line(r: dict) -> str:
     """CPU-s per sim-s, summed and per node."""
     return (f'{r["cpu_s_per_sim_s_total"]:.3f} CPU-s per sim-s ('
-            + ', '.join(f'{k} {v:.3f}' for k, v in r['cpu_s_per_sim_s'].items()) + ')')
+            + ', '.join(f'{k} {v:.3f}' for k, v in r['cpu_s_per_sim_s'].items()) + '); '
+            'wakeups per sim-s: '
+            + ', '.join(f'{k} {v:.0f}' for k, v in r['wakeups_per_sim_s'].items()))
 
 
 def main() -> int:

@@ -170,8 +170,11 @@ class GraphNode(Node):
         if sub is None or not self.sim_time:
             return
         group = OnDemand()
-        sub.callback_group = group
-        group.add_entity(sub)
+        # the subscription and its QoS event handlers (left in a group the executor waits
+        # on, they keep its wait returning at once while /clock messages wait untaken)
+        for entity in [sub, *getattr(sub, 'event_handlers', [])]:
+            entity.callback_group = group
+            group.add_entity(entity)
         self._clock_sub = sub
 
     def take_clock(self) -> None:
