@@ -117,6 +117,7 @@ class LearnerNode(GraphNode):
         self._publish_params(0.0)
         # "up": the simulator's learner gate starts the first episode on this report
         self._progress({'episode': 0, 'learned': 0, 'event': 'ready'}, 0.0)
+        self.defer_housekeeping()
         self.get_logger().info(
             f'learner: condition {self.graph.condition}, modules {", ".join(self.names)}, '
             f'correction {self.clis.learner.correction}, out {self.out or "-"}')

@@ -116,6 +116,7 @@ class ArbiterNode(GraphNode):
             self.create_timer(0.01, self._advance, clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
             self.create_timer(self.cfg.check_period, self._on_check)
+        self.defer_housekeeping()
         self.get_logger().info(
             f'arbiter: condition {self.graph.condition}, modules {", ".join(names)}, '
             f'selection per {self.selector.mode}, beta {common.beta}'

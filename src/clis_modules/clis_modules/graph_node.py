@@ -17,22 +17,28 @@ a stream that a node needs only at some instants is taken *on demand*: its subsc
 an :class:`OnDemand` callback group, its messages wait in their DDS queue, and the node takes
 them (:func:`take_all`) when it needs them, or lets the executor wake it for them while it
 waits for one (``group.active``). :meth:`GraphNode.clock_on_demand` does this for ``/clock``
-in a node that reads its clock only now and then (the learner, the arbiter).
+in a node that reads its clock only now and then (the learner, the arbiter). The entities
+that serve others now and then, the parameter services and the default QoS-incompatibility
+event handlers, are not waited on at every wakeup either (:meth:`GraphNode.defer_housekeeping`):
+they are served every ``graph.housekeeping_period`` of wall time (``ros2 param`` answers that
+much later), which halves the entities of every wait.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 import sys
+import time
 from typing import Any
 
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 import rclpy
 from rclpy.callback_groups import CallbackGroup
-from rclpy.clock import JumpThreshold
+from rclpy.clock import Clock, ClockType, JumpThreshold
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -59,6 +65,8 @@ class GraphParams:
                           '(rclpy.experimental.EventsExecutor) or the default single-threaded')
     liveliness_lease: float = param(0.1, 60.0, doc='[s wall] DDS liveliness lease of the '
                                     'proposals: the arbiter knows a module died this soon')
+    housekeeping_period: float = param(0.001, 10.0, doc='[s wall] how often the parameter '
+                                       'services and QoS-incompatibility events are served')
 
     def proposal_qos(self, depth: int = STREAM_DEPTH) -> QoSProfile:
         """QoS of a module's proposals with this ``liveliness_lease``: see :func:`proposal_qos`."""
@@ -97,6 +105,33 @@ class OnDemand(CallbackGroup):
 
     def ending_execution(self, entity) -> None:
         pass
+
+
+class Housekeeping(CallbackGroup):
+    """A callback group the executor waits on only for a moment after each :meth:`open`
+    (:meth:`GraphNode.defer_housekeeping`)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.until = 0.0
+
+    def open(self, seconds: float = 0.002) -> None:
+        """Let the next waits of the executor (within ``seconds``) include the entities."""
+        self.until = time.monotonic() + seconds
+
+    def can_execute(self, entity) -> bool:
+        return time.monotonic() < self.until
+
+    def beginning_execution(self, entity) -> bool:
+        return True
+
+    def ending_execution(self, entity) -> None:
+        pass
+
+
+#: The default QoS event handlers that only report a mismatch found at discovery.
+_MISMATCH_EVENTS = ('OFFERED_INCOMPATIBLE_QOS', 'REQUESTED_INCOMPATIBLE_QOS',
+                    'INCOMPATIBLE_TYPE')
 
 
 def take_all(sub) -> list:
@@ -161,6 +196,21 @@ class GraphNode(Node):
             self.take_clock()
         return self.get_clock().now().nanoseconds * 1e-9
 
+    def defer_housekeeping(self) -> None:
+        """Serve the parameter services and the QoS-mismatch event handlers only every
+        ``graph.housekeeping_period`` of wall time instead of waiting on them at every wakeup
+        (module docstring). Call it last in ``__init__``: it moves what exists then."""
+        group = Housekeeping()
+        moved = [srv for srv in self.services]
+        moved += [w for w in self.waitables if not isinstance(w.callback_group, OnDemand)
+                  and any(str(getattr(w, 'event_type', '')).endswith(e)
+                          for e in _MISMATCH_EVENTS)]
+        for entity in moved:
+            entity.callback_group = group
+            group.add_entity(entity)
+        self.create_timer(self.graph.housekeeping_period, group.open,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
     def clock_on_demand(self) -> None:
         """Under sim time, take ``/clock`` only when the node reads its clock (:meth:`now_s`,
         :meth:`take_clock`) instead of being woken for every message: for a node whose
@@ -220,11 +270,13 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
         raise SystemExit(2) from None
     executor = make_executor(node.graph.executor)
     executor.add_node(node)
+    profiler = start_profile()
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        stop_profile(profiler, name)
         close = getattr(node, 'close', None)
         if callable(close):
             close()

@@ -133,6 +133,7 @@ class ModuleNode(GraphNode):
             self.on_clock_advance(self._on_clock)
         # wall clock: waiting for parameters while the simulator holds its clock
         self.create_timer(0.05, self._on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.defer_housekeeping()
         self.get_logger().info(
             f'{kind}: condition {self.graph.condition}, period {self.period} s, '
             f'v_max {module.v_max:.3f} m/s, {module.n} features')

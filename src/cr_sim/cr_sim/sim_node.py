@@ -29,6 +29,7 @@ from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
+from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 
 START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
@@ -297,11 +298,13 @@ def main(args: list[str] | None = None) -> None:
         raise SystemExit(2) from None
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+    profiler = start_profile()
     try:
         run(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        stop_profile(profiler, 'sim')
         node.destroy_node()
         rclpy.try_shutdown()
 
