@@ -75,7 +75,7 @@ def children(pid: int) -> dict[str, int]:
 
 
 def measure(seconds: float, single: bool, executor: str = 'single',
-            cpus: str = '') -> dict:
+            cpus: str = '', params: str = '') -> dict:
     from geometry_msgs.msg import TwistStamped
     import rclpy
     from rosgraph_msgs.msg import Clock
@@ -90,6 +90,8 @@ def measure(seconds: float, single: bool, executor: str = 'single',
         params = out / 'executor.yaml'
         params.write_text(f'/**:\n  ros__parameters:\n    graph:\n      executor: {executor}\n')
         cmd += ['--params', str(params)]
+    if params:
+        cmd += ['--params', params]
     if cpus:
         cmd = ['taskset', '-c', cpus, *cmd]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -190,10 +192,12 @@ def main() -> int:
                          'that run gives)')
     ap.add_argument('--cpus', default='', metavar='LIST',
                     help='pin the graph to these cores (taskset -c LIST)')
+    ap.add_argument('--params', default='', metavar='FILE',
+                    help='a parameter file for clis run --params (with --cpu-only)')
     args = ap.parse_args()
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
-    multi = measure(args.seconds, single=False, cpus=args.cpus)
+    multi = measure(args.seconds, single=False, cpus=args.cpus, params=args.params)
     if args.cpu_only:
         print(f'processes (cores {multi["cpus"]}, load {multi["load_avg_1min"]:.1f}): '
               f'{cpu_line(multi)}; real-time factor {multi["rtf"]:.1f}x, latency p50 '
