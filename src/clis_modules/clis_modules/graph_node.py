@@ -41,6 +41,7 @@ from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType, JumpThreshold
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import LivelinessPolicy, QoSProfile
@@ -51,6 +52,7 @@ __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qo
            'take_all']
 
 EXECUTORS = ('events', 'single')
+RCLError = _rclpy.RCLError
 
 
 @dataclass(frozen=True)
@@ -275,6 +277,12 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:
+        # Ctrl-C / SIGTERM can shut the context down while the executor builds its wait set
+        # (an rclpy race: 'failed to initialize wait set: the given context is not valid');
+        # after a shutdown that is a clean stop, anything else is an error
+        if rclpy.ok():
+            raise
     finally:
         stop_profile(profiler, name)
         close = getattr(node, 'close', None)
