@@ -34,6 +34,7 @@ from typing import Any
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 import rclpy
@@ -41,7 +42,6 @@ from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType, JumpThreshold
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import LivelinessPolicy, QoSProfile
@@ -52,7 +52,6 @@ __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qo
            'take_all']
 
 EXECUTORS = ('events', 'single')
-RCLError = _rclpy.RCLError
 
 
 @dataclass(frozen=True)
@@ -277,12 +276,8 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RCLError:
-        # Ctrl-C / SIGTERM can shut the context down while the executor builds its wait set
-        # (an rclpy race: 'failed to initialize wait set: the given context is not valid');
-        # after a shutdown that is a clean stop, anything else is an error
-        if rclpy.ok():
-            raise
+    except SHUTDOWN_RACES:
+        reraise_unless_shut_down()          # a shutdown racing the executor is a clean stop
     finally:
         stop_profile(profiler, name)
         close = getattr(node, 'close', None)

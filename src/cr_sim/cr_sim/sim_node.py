@@ -29,6 +29,7 @@ from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
+from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 
@@ -303,6 +304,8 @@ def main(args: list[str] | None = None) -> None:
         run(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except SHUTDOWN_RACES:
+        reraise_unless_shut_down()          # a shutdown racing the executor is a clean stop
     finally:
         stop_profile(profiler, 'sim')
         node.destroy_node()
