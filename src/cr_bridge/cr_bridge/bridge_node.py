@@ -35,12 +35,12 @@ from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.robot import clamp_wheels, integrate_arc, wheels_to_twist
 from cr_sim.core.sim import IGNORED_SECTIONS, SimParams
+from cr_sim.interface import open_robot_interface
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile
 
 from cr_bridge import conversions as bconv
 from cr_bridge.core import protocol as proto
@@ -137,32 +137,9 @@ class BridgeNode(Node):
         self.stats_total = proto.ParserStats()  # over all connections
         self.t_wall0 = time.monotonic()
 
-        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_clock = self.create_publisher(conv.Clock, '/clock', 10)
-        self.pub_ir = self.create_publisher(conv.LaserScan, 'ir', conv.STREAM_DEPTH)
-        self.pub_camera = self.create_publisher(conv.JointState, 'camera', conv.STREAM_DEPTH)
-        self.pub_wheels = self.create_publisher(conv.JointState, 'wheels', conv.STREAM_DEPTH)
-        self.pub_reward = self.create_publisher(conv.Vector3Stamped, 'reward', conv.STREAM_DEPTH)
-        self.pub_episode = self.create_publisher(
-            conv.DiagnosticArray, 'episode',
-            QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.pub_odom = self.create_publisher(conv.Odometry, 'odom', conv.STREAM_DEPTH)
-        self.pub_arena = self.create_publisher(conv.MarkerArray, 'arena', latched)
-        self.pub_markers = self.create_publisher(conv.MarkerArray, 'markers', 10)
+        open_robot_interface(self, self.arena, self.cfg.map_frame, self.cfg.cmd_vel_stamped,
+                             self.cfg.wait_for_learner)
         self.pub_diag = self.create_publisher(conv.DiagnosticArray, 'diagnostics', 10)
-        cmd_type = conv.TwistStamped if self.cfg.cmd_vel_stamped else conv.Twist
-        self.create_subscription(cmd_type, 'cmd_vel', self._on_cmd, 10)
-        from std_srvs.srv import Trigger
-        self.create_service(Trigger, 'reset', self._on_reset)
-        if self.cfg.wait_for_learner:
-            self.create_subscription(conv.DiagnosticArray, 'learner/progress', self._on_progress,
-                                     QoSProfile(depth=1,
-                                                durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.pub_arena.publish(conv.arena_markers(
-            self.arena.wall_boxes(), self.arena.short_boxes(), self.arena.tall_boxes(),
-            [(lm.x, lm.y) for lm in self.arena.landmarks],
-            (self.arena.destination.x, self.arena.destination.y,
-             self.arena.destination.goal_radius), self.cfg.map_frame))
         self.get_logger().info(
             f'device {self.cfg.device}, watchdog {self.cfg.watchdog} s, link timeout '
             f'{self.cfg.link_timeout} s, start {self.cfg.start}')

@@ -21,7 +21,6 @@ import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile
 
 from cr_sim import conversions as conv
 from cr_sim.core.arena import load_arena
@@ -29,6 +28,7 @@ from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
+from cr_sim.interface import open_robot_interface
 from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
@@ -93,32 +93,8 @@ class SimNode(Node):
                                 self.cfg.lockstep, self.cfg.command_timeout,
                                 hold_periods=self.cfg.lockstep_periods)
 
-        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_clock = self.create_publisher(conv.Clock, '/clock', 10)
-        self.pub_ir = self.create_publisher(conv.LaserScan, 'ir', conv.STREAM_DEPTH)
-        self.pub_camera = self.create_publisher(conv.JointState, 'camera', conv.STREAM_DEPTH)
-        self.pub_wheels = self.create_publisher(conv.JointState, 'wheels', conv.STREAM_DEPTH)
-        self.pub_reward = self.create_publisher(conv.Vector3Stamped, 'reward', conv.STREAM_DEPTH)
-        self.pub_episode = self.create_publisher(
-            conv.DiagnosticArray, 'episode', QoSProfile(depth=10,
-                                                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.pub_odom = self.create_publisher(conv.Odometry, 'odom', conv.STREAM_DEPTH)
-        self.pub_arena = self.create_publisher(conv.MarkerArray, 'arena', latched)
-        self.pub_markers = self.create_publisher(conv.MarkerArray, 'markers', 10)
-        cmd_type = conv.TwistStamped if self.cfg.cmd_vel_stamped else conv.Twist
-        self.create_subscription(cmd_type, 'cmd_vel', self._on_cmd, 10)
-        from std_srvs.srv import Trigger
-        self.create_service(Trigger, 'reset', self._on_reset)
-        if self.cfg.wait_for_learner:
-            self.create_subscription(conv.DiagnosticArray, 'learner/progress', self._on_progress,
-                                     QoSProfile(depth=1,
-                                                durability=DurabilityPolicy.TRANSIENT_LOCAL))
-
-        self.pub_arena.publish(conv.arena_markers(
-            self.arena.wall_boxes(), self.arena.short_boxes(), self.arena.tall_boxes(),
-            [(lm.x, lm.y) for lm in self.arena.landmarks],
-            (self.arena.destination.x, self.arena.destination.y,
-             self.arena.destination.goal_radius), self.cfg.map_frame))
+        open_robot_interface(self, self.arena, self.cfg.map_frame, self.cfg.cmd_vel_stamped,
+                             self.cfg.wait_for_learner)
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
         self.ir_angles = np.deg2rad(self.params.sensors.ir_angles_deg)
         if self.gate.first(time.monotonic()):
