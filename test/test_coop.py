@@ -4,6 +4,7 @@ steps), hand-computed; the periodic evaluation (Fig. 3a) and the presets."""
 
 from __future__ import annotations
 
+import json
 import math
 
 from clis_learner.cli import main as clis
@@ -139,9 +140,9 @@ def test_improved_preset_loads_and_ablation_toggles_each_group():
     assert preset_overrides('paper') == {}
     groups = preset_groups('improved')
     conds = ablation_conditions('improved')
-    assert len(conds) == len(groups) + 1
-    assert conds[0].startswith('async@') and all('@' in c for c in conds)
-    assert conds[-1].count('@') == len(over)               # all of them together
+    assert len(conds) == len(groups) >= 4
+    assert all(c.startswith('async@') for c in conds)
+    assert sum(c.count('@') for c in conds) == len(over)    # each change in exactly one row
     with pytest.raises(ValueError, match='unknown preset'):
         preset_overrides('nope')
 
@@ -180,3 +181,17 @@ def test_experiment_preset_and_ablation_flags(tmp_path, capsys):
     assert code == 2 and '--ablation needs --preset' in capsys.readouterr().err
     code = clis(['experiment', '--out', str(tmp_path / 'x'), '--eval-every', '-1'])
     assert code == 2 and '--eval-every' in capsys.readouterr().err
+    out = tmp_path / 'abl'
+    assert clis(['experiment', '--preset', 'improved', '--ablation', '--conditions', 'view',
+                 '--episodes', '1', '--block', '1', '--seeds', '1', '--eval-episodes', '1',
+                 '--eval-every', '0', '--sim-set', 'episode.time_limit=1.0', '--workers', '1',
+                 '--out', str(out), '--quiet']) == 0
+    summary = json.loads((out / 'summary.json').read_text())
+    labels = list(summary['conditions'])
+    assert labels[0] == 'improved:view' and labels[-1] == 'improved:async'
+    assert summary['conditions']['improved:async']['overrides'] == preset_overrides('improved')
+    singles = labels[1:-1]
+    assert len(singles) == len(preset_groups('improved'))
+    for lb in singles:                                # one change alone, on the paper preset
+        over = summary['conditions'][lb]['overrides']
+        assert over and set(over) < set(preset_overrides('improved'))

@@ -99,8 +99,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='parameter preset: config/clis.yaml (paper, default) with the '
                         'overrides of config/clis_PRESET.yaml (improved: beyond the paper)')
     p.add_argument('--ablation', action='store_true',
-                   help='with --preset P: each change of P alone and all together, as Async '
-                        'conditions on the same seeds (plus the conditions given)')
+                   help='with --preset P: also Async with each change of P alone (on the '
+                        'paper preset) and with all of them (P:async), on the same seeds')
     p.add_argument('--train-start', default='wander',
                    help="where learning episodes start: 'wander' (default, the paper: the hand-"
                         "made wander policy moves the robot from where the last episode ended),"
@@ -138,16 +138,12 @@ def presets() -> tuple[str, ...]:
 
 
 def ablation_conditions(preset: str, base: str = 'async') -> list[str]:
-    """``base`` with each change of ``preset`` alone (its groups, :func:`preset_groups`),
-    then all of them: ``async@key=value@...``, labelled by the override keys."""
+    """``base`` with each change of ``preset`` alone (its groups,
+    :func:`~clis_learner.core.config.preset_groups`) on the paper's parameters:
+    ``async@key=value@...``. All changes together is the preset's own ``base`` condition."""
     from clis_learner.core.config import preset_groups
-    groups = preset_groups(preset)
-    out = []
-    for items in groups.values():
-        out.append(base + ''.join(f'@{k}={v}' for k, v in items.items()))
-    out.append(base + ''.join(f'@{k}={v}' for items in groups.values()
-                              for k, v in items.items()))
-    return out
+    return [base + ''.join(f'@{k}={v}' for k, v in items.items())
+            for items in preset_groups(preset).values()]
 
 
 def _overrides(items: list[str]) -> dict[str, Any]:
@@ -220,16 +216,20 @@ def main(args: argparse.Namespace) -> int:
     runs_dir = out / 'runs'
     runs_dir.mkdir(parents=True, exist_ok=True)
     conditions = [c for c in args.conditions.split(',') if c.strip()]
+    from clis_learner.core.config import preset_overrides as _preset
+    preset_overrides = _preset(args.preset)
+    with_preset = [True] * len(conditions)         # the preset applies to the conditions given
     if args.ablation:
         if args.preset == 'paper':
             print('clis experiment: --ablation needs --preset (the changes to toggle)',
                   file=sys.stderr)
             return 2
-        conditions += [c for c in ablation_conditions(args.preset) if c not in conditions]
-        preset_overrides = {}                      # every change is explicit in its label
-    else:
-        from clis_learner.core.config import preset_overrides as _preset
-        preset_overrides = _preset(args.preset)
+        singles = [c for c in ablation_conditions(args.preset) if c not in conditions]
+        conditions += singles                      # each change alone, on the paper preset
+        with_preset += [False] * len(singles)
+        if 'async' not in conditions:              # all of them: the preset's Async
+            conditions.append('async')
+            with_preset.append(True)
     try:
         parsed = [parse_condition(c) for c in conditions]
     except argparse.ArgumentTypeError as exc:
@@ -249,18 +249,21 @@ def main(args: argparse.Namespace) -> int:
         print(f'clis experiment: --episodes {args.episodes} is shorter than one block '
               f'(--block {args.block})', file=sys.stderr)
         return 2
-    common = {**preset_overrides, **_overrides(args.sets)}
+    common = _overrides(args.sets)
     sim_overrides = _overrides(args.sim_sets)
     specs = []
-    for label, (name, overrides) in zip(conditions, parsed):
+    for label, (name, overrides), preset in zip(conditions, parsed, with_preset):
+        label = label.strip()
+        if preset and preset_overrides:
+            label, overrides = f'{args.preset}:{label}', {**preset_overrides, **overrides}
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             specs.append(JobSpec(
-                index=len(specs), condition=name, preset=args.preset,
-                label=label.strip() if not preset_overrides else f'{args.preset}:{label.strip()}',
+                index=len(specs), label=label, condition=name,
                 overrides={**common, **overrides}, sim_overrides=sim_overrides, seed=seed,
                 episodes=args.episodes, eval_episodes=args.eval_episodes,
                 arena=str(args.arena) if args.arena else None, run_dir=str(runs_dir),
-                block=args.block, train_start=args.train_start, eval_every=args.eval_every))
+                block=args.block, train_start=args.train_start, eval_every=args.eval_every,
+                preset=args.preset if preset else 'paper'))
     try:  # validate every parameter set before starting hours of work
         for spec in specs:
             spec.validate()
