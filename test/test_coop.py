@@ -12,6 +12,8 @@ from clis_learner.core.config import load_clis_params, preset_groups, preset_ove
 from clis_learner.core.corrections import mixture_density
 from clis_learner.core.runner import JobSpec, run_job
 from clis_learner.core.updates import (
+    discounted_returns,
+    imitation_weights,
     offpac_weights,
     step_sizes,
     td_lambda_is,
@@ -79,6 +81,15 @@ def test_offpac_weights_are_truncated_ratio_times_advantage():
     ret = [0.81, 0.9, 1.0]
     assert offpac_weights(ret, [0.0, 0.0, 1.0], np.ones(3), 0.9, 1.0) == pytest.approx(
         np.zeros(3), abs=1e-12)
+
+
+def test_imitation_weights_clone_only_where_the_return_beat_the_value():
+    r = [0.0, -0.1, 1.0]
+    g = discounted_returns(r, 0.5)
+    assert g == pytest.approx([-0.05 + 0.25, -0.1 + 0.5, 1.0])      # (0.2, 0.4, 1.0)
+    w = imitation_weights([0.5, 0.1, 0.2], r, 0.5, 2.0)
+    assert w == pytest.approx([0.0, 2 * 0.3, 2 * 0.8])               # max(0, G - V) x kappa
+    assert imitation_weights([0.5, 0.1, 0.2], r, 0.5, 0.0).tolist() == [0.0, 0.0, 0.0]
 
 
 # ------------------------------------------------------------------------------ mixture

@@ -60,6 +60,8 @@ class LearnerParams:
                                'heuristic)')
     rho_bar: float = param(0.0, 1e6, doc='truncation level of the per-step ratio of retrace '
                                          '/ offpac (V-trace rho-bar = c-bar)')
+    imitation: float = param(0.0, 1e3, doc='weight kappa of the imitation term kappa max(0, '
+                             'G - V_i) d ln pi (CRAIL / self-imitation); 0 = off (paper)')
     step_norm: str = param(choices=STEP_NORMS,
                            doc="'none' = alpha as given; 'features' = alpha / (b . b) per step "
                                '(normalised LMS: each step moves V and the mean at x by alpha '
@@ -78,6 +80,7 @@ class ClisParams(ModuleSetParams):
 PRESET_GROUPS: dict[str, tuple[str, ...]] = {
     'retrace': ('learner.value_update', 'learner.rho_bar', 'learner.correction'),
     'offpac': ('learner.policy_update',),
+    'imitation': ('learner.imitation',),
     'mixture': ('learner.behaviour',),
     'selection': ('arbiter.rule', 'common.beta', 'arbiter.scale_min'),
     'steps': ('learner.step_norm', 'learner.policy_step', 'view.policy.alpha',

@@ -18,7 +18,8 @@ Beyond the paper (``clis.yaml`` section ``learner``, :mod:`~clis_learner.core.up
 the selection mixture ``sum_j Pr(j | x) pi_j`` on every step (on-policy steps too);
 ``value_update = retrace`` replaces (8) in step 4 and ``policy_update = offpac`` replaces (9)
 in step 5 by per-decision truncated corrections; ``step_norm = features`` divides the step
-sizes of both by the feature mass ``b . b``.
+sizes of both by the feature mass ``b . b``; ``imitation > 0`` adds behaviour cloning of the
+executed actions where their return beat V_i (CRAIL; self-imitation) to step 5.
 
 All densities of step 3 use the parameters the episode was played with: every ratio is computed
 before any module is updated, so the order of the modules does not matter. The result depends
@@ -67,6 +68,7 @@ from clis_learner.core.memory import EpisodeMemory
 from clis_learner.core.resample import latest_index, resample_actions, sum_rewards
 from clis_learner.core.updates import (
     MASS_MIN,
+    imitation_weights,
     offpac_weights,
     pg_weights,
     step_sizes,
@@ -242,6 +244,9 @@ class Learner:
             else:
                 # (9) sum over the episode of gamma_i^t r c e, e = accumulated d ln pi / d W
                 g = pg_weights(rp.r, c, m.gamma)
+            if prm.imitation > 0.0:
+                # CRAIL / self-imitation: clone u_l where G_l beat V_i(x_l) (updates module)
+                g = g + imitation_weights(v_before, rp.r, m.gamma, prm.imitation)
             if prm.step_norm == 'features':
                 g = g / np.maximum(np.einsum('ln,ln->l', rp.B, rp.B), MASS_MIN)
             d_w, d_sigma = m.policy.weighted_scores(rp.B, rp.U, g)

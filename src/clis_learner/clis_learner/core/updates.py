@@ -35,7 +35,8 @@ from numpy.typing import ArrayLike
 
 __all__ = ['C_MAX', 'gamma_i', 'importance_products', 'td_lambda_is', 'pg_weights',
            'policy_gradient_is', 'VALUE_UPDATES', 'POLICY_UPDATES', 'STEP_NORMS',
-           'step_sizes', 'td_retrace', 'vtrace_targets', 'offpac_weights']
+           'step_sizes', 'td_retrace', 'vtrace_targets', 'offpac_weights',
+           'discounted_returns', 'imitation_weights']
 
 #: ``learner.value_update``, ``learner.policy_update``, ``learner.step_norm``.
 VALUE_UPDATES = ('paper', 'retrace')
@@ -323,3 +324,36 @@ def offpac_weights(v: ArrayLike, r: ArrayLike, rho: ArrayLike, gamma_i: float,
     wt = np.minimum(np.asarray(rho, dtype=np.float64), rho_bar)
     # Off-PAC / V-trace actor: rho_l (r_l + gamma v_{l+1} - V(x_l)) d ln pi(x_l, u_l)
     return wt * (np.asarray(r, dtype=np.float64) + gamma_i * target[1:] - v)
+
+
+def discounted_returns(r: ArrayLike, gamma_i: float) -> np.ndarray:
+    """``G_l = sum_{k >= l} gamma_i^(k - l) r_k`` of one episode (``G_L = 0``), shape (L,)."""
+    r = np.asarray(r, dtype=np.float64)
+    g = np.empty(len(r))
+    acc = 0.0
+    for l in range(len(r) - 1, -1, -1):  # noqa: E741
+        acc = r[l] + gamma_i * acc
+        g[l] = acc
+    return g
+
+
+def imitation_weights(v: ArrayLike, r: ArrayLike, gamma_i: float, kappa: float) -> np.ndarray:
+    """Weight of each step's score in the imitation term (module docstring, beyond the paper).
+
+    ``kappa max(0, G_l - V(x_l))``: behaviour cloning of the executed action ``u_l`` (the score
+    ``d ln pi(x_l, u_l)``, CRAIL, Uchibe 2018) where its return beat the module's own value
+    (self-imitation learning, Oh et al. 2018), whoever acted.
+
+    Parameters
+    ----------
+    v : array_like, shape (L,)
+        ``V(x_l)`` before the update.
+    r : array_like, shape (L,)
+    gamma_i, kappa : float
+
+    Returns
+    -------
+    np.ndarray, shape (L,)
+    """
+    # self-imitation: kappa max(0, G_l - V(x_l))
+    return kappa * np.maximum(discounted_returns(r, gamma_i) - np.asarray(v, np.float64), 0.0)
