@@ -158,8 +158,14 @@ def eval_report(runs: list[JobResult]) -> str:
         final = 100.0 * curves[:, -1] / n_eval
         out.append(f'| {lb} | {len(rs)} | {cells} | {reach} | {_ci(final)}% |')
     multi = [lb for lb in labels if by[lb][0].solo]
-    singles = {r.spec['condition']: lb for lb in labels for r in by[lb][:1]
-               if len(r.modules) == 1}
+    def single(multi_label: str, name: str) -> str | None:
+        """The single-module label of the same preset (``improved:place`` for
+        ``improved:async``), else the paper preset's."""
+        prefix = multi_label.split(':')[0] + ':' if ':' in multi_label.split('@')[0] else ''
+        for cand in (prefix + name, name):
+            if cand in by and len(by[cand][0].modules) == 1:
+                return cand
+        return None
     if multi:
         out += ['', 'The thesis measured directly: each learned module, trained inside the '
                 'multi-module condition, then evaluated acting alone from A-E (learning off, '
@@ -170,10 +176,10 @@ def eval_report(runs: list[JobResult]) -> str:
         for lb in multi:
             for name in by[lb][0].solo:
                 inside = [100.0 * r.solo[name]['reached'] / r.solo[name]['n'] for r in by[lb]]
-                alone = 'n/a'
-                if name in singles:
+                alone, ref = 'n/a', single(lb, name)
+                if ref is not None:
                     alone = _ci([100.0 * r.eval_success_curve()[-1] / n_eval
-                                 for r in by[singles[name]]]) + '%'
+                                 for r in by[ref]]) + f'% ({ref})'
                 out.append(f'| {lb} | {name} | {_ci(inside)}% | {alone} |')
         out += ['', 'Importance weights of the learned modules over the last third of learning '
                 '(median over episodes of the per-episode median weight c_median -- the product'
