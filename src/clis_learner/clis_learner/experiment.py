@@ -276,6 +276,7 @@ def main(args: argparse.Namespace) -> int:
         'eval_episodes': args.eval_episodes, 'sets': common, 'sim_sets': sim_overrides,
         'train_start': args.train_start, 'block': args.block, 'eval_every': args.eval_every,
         'preset': args.preset, 'ablation': args.ablation,
+        'overrides': {s.label: s.overrides for s in specs},
         'arena': str(args.arena) if args.arena else None, 'backend': args.backend,
         'address': args.address}, indent=2))
     todo = [s for s in specs if not (args.resume or args.figures_only) or not s.done()]
