@@ -136,8 +136,8 @@ def eval_report(runs: list[JobResult]) -> str:
     by = {lb: [r for r in runs if r.spec['label'] == lb] for lb in labels}
     level = innate_eval_level(runs)
     n_eval = int(runs[0].eval_curve[0]['n'])
-    pts = runs[0].eval_points()
-    show = [p for p in (0, 50, 100, 150, 300, 500) if p in pts] + [pts[-1]]
+    every = sorted({p for r in runs for p in r.eval_points()})
+    show = [p for p in (0, 50, 100, 150, 300, 500) if p in every] + [every[-1]]
     show = list(dict.fromkeys(show))
     out = [f'Evaluation curve (Fig. 3a): successes in {n_eval} episodes from A-E with learning '
            'off, after the given number of learning episodes (mean ± 95% t-band over seeds)'
@@ -148,15 +148,16 @@ def eval_report(runs: list[JobResult]) -> str:
     for lb, rs in by.items():
         n = min(len(r.eval_curve) for r in rs)
         curves = np.array([r.eval_success_curve()[:n] for r in rs], float)
+        pts = rs[0].eval_points()[:n]
         mean, half = band(curves)
-        cells = ' | '.join(_fmt(mean[pts.index(p)], half[pts.index(p)]) if pts.index(p) < n
+        cells = ' | '.join(_fmt(mean[pts.index(p)], half[pts.index(p)]) if p in pts
                            else '-' for p in show)
         reach = 'n/a'
         if level is not None and rs[0].spec['condition'] != 'innate':
             hit = episodes_to_level(rs, level)
             reach = 'never' if hit is None else str(hit)
         final = 100.0 * curves[:, -1] / n_eval
-        out.append(f'| {lb} | {len(rs)} | {cells} | {reach} | {_ci(final)}% |')
+        out.append(f'| {lb} | {len(rs)} | {cells} | {reach} | {_ci(final)}% (ep {pts[-1]}) |')
     multi = [lb for lb in labels if by[lb][0].solo]
     def single(multi_label: str, name: str) -> str | None:
         """The single-module label of the same preset (``improved:place`` for

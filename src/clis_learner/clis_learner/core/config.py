@@ -62,6 +62,8 @@ class LearnerParams:
                                          '/ offpac (V-trace rho-bar = c-bar)')
     imitation: float = param(0.0, 1e3, doc='weight kappa of the imitation term kappa max(0, '
                              'G - V_i) d ln pi (CRAIL / self-imitation); 0 = off (paper)')
+    max_mean_step: float = param(0.0, 1e3, doc='trust region: largest change of the policy '
+                                 'mean at a state of the episode, in sigma; 0 = none (paper)')
     step_norm: str = param(choices=STEP_NORMS,
                            doc="'none' = alpha as given; 'features' = alpha / (b . b) per step "
                                '(normalised LMS: each step moves V and the mean at x by alpha '
@@ -83,8 +85,8 @@ PRESET_GROUPS: dict[str, tuple[str, ...]] = {
     'imitation': ('learner.imitation',),
     'mixture': ('learner.behaviour',),
     'selection': ('arbiter.rule', 'common.beta', 'arbiter.scale_min'),
-    'steps': ('learner.step_norm', 'learner.policy_step', 'view.policy.alpha',
-              'place.policy.alpha'),
+    'steps': ('learner.step_norm', 'learner.policy_step', 'learner.max_mean_step',
+              'view.policy.alpha', 'place.policy.alpha'),
 }
 
 

@@ -19,7 +19,9 @@ the selection mixture ``sum_j Pr(j | x) pi_j`` on every step (on-policy steps to
 ``value_update = retrace`` replaces (8) in step 4 and ``policy_update = offpac`` replaces (9)
 in step 5 by per-decision truncated corrections; ``step_norm = features`` divides the step
 sizes of both by the feature mass ``b . b``; ``imitation > 0`` adds behaviour cloning of the
-executed actions where their return beat V_i (CRAIL; self-imitation) to step 5.
+executed actions where their return beat V_i (CRAIL; self-imitation) to step 5;
+``max_mean_step > 0`` bounds the change of the policy mean at the episode's states (a trust
+region).
 
 All densities of step 3 use the parameters the episode was played with: every ratio is computed
 before any module is updated, so the order of the modules does not matter. The result depends
@@ -253,6 +255,15 @@ class Learner:
             if self.params.policy_step == 'scaled':
                 d_w *= m.sigma ** 2 / m.v_max ** 2
                 d_sigma *= m.sigma ** 2 / (2 * ACTION_DIM)
+            if prm.max_mean_step > 0.0:
+                # trust region (cf. TRPO, Schulman et al. 2015): the episode's summed update may
+                # move the mean v_max W b at any of its states by at most max_mean_step sigma
+                # (KL <= max_mean_step^2 / 2 per state); a long episode stuck in one state no
+                # longer adds up to a step many times the error
+                shift = m.v_max * pp.alpha * np.linalg.norm(rp.B @ d_w.T, axis=1).max()
+                limit = prm.max_mean_step * m.sigma
+                if shift > limit:
+                    d_w = d_w * (limit / shift)
             grad_norm = float(np.linalg.norm(d_w))
             # (9) W_i <- W_i + alpha_i gamma_i^t r c_i e_i
             W_new = m.W + pp.alpha * d_w  # noqa: N806
