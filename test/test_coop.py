@@ -226,3 +226,40 @@ def test_paper_preset_is_bit_identical_to_before_issue_9(tmp_path, condition):
     rows = run_job(spec).episodes
     digest = hashlib.sha256(json.dumps(rows, sort_keys=True).encode()).hexdigest()
     assert digest == PAPER_GOLDEN[condition]
+
+
+# ------------------------------------------------------------------------------ trust region
+
+
+def _stuck_episode(mod, steps: int, u: float):
+    """The view module deciding ``steps`` times in the same state, executing ``u`` on both
+    wheels, then the goal: a robot pushing against an obstacle, as in the diverged seed."""
+    from clis_learner.core.memory import EpisodeMemory
+    mem = EpisodeMemory([mod.name])
+    b = mod.features(0.0, 0.05, None)
+    for k in range(steps):
+        mem.record_decision(mod.name, k * mod.period, b)
+        mem.record_action(k * mod.period, np.array([u, u]), mod.name)
+    mem.record_reward(steps * mod.period, 1.0)
+    mem.end(steps * mod.period, reached=True)
+    return mem
+
+
+def test_trust_region_bounds_the_mean_change_of_a_stuck_episode():
+    from clis_learner.core.learner import Learner
+    from clis_modules.core.modules import make_modules
+
+    lm = np.array([[1.5, 0.75], [-0.75, 1.5], [-1.5, -0.75], [0.75, -1.5]])
+    over = {**preset_overrides('improved'), 'learner.policy_update': 'paper'}
+    shifts = {}
+    for bound in (0.0, 1.0):
+        p = load_clis_params(overrides={**over, 'learner.max_mean_step': bound})
+        (view,) = make_modules(p, 'view', lm, 1.5)
+        b = view.features(0.0, 0.05, None)
+        before = view.policy.mean(b)
+        Learner([view], p).learn(_stuck_episode(view, 100, 0.3))
+        shifts[bound] = float(np.linalg.norm(view.policy.mean(b) - before))
+    # 100 steps toward u = 0.3 m/s, each alpha of the error: unbounded, the sum overshoots
+    # the executed action many times; bounded, the mean moves by exactly sigma = 0.1 m/s
+    assert shifts[0.0] > 0.6 > np.hypot(0.3, 0.3)          # beyond the executed action
+    assert shifts[1.0] == pytest.approx(0.1, rel=1e-9)
