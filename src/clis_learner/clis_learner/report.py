@@ -45,7 +45,8 @@ def report(runs: list[JobResult]) -> str:
     labels = list(dict.fromkeys(r.spec['label'] for r in runs))
     by = {lb: [r for r in runs if r.spec['label'] == lb] for lb in labels}
     block = runs[0].block
-    innate = by.get('innate')
+    innate = by.get('innate') or next((rs for rs in by.values()
+                                       if rs[0].spec['condition'] == 'innate'), None)
     innate_level = (float(np.mean([r.success_curve() for r in innate])) if innate else None)
     n_blocks = min(len(r.success_curve()) for r in runs)
     points = sorted({0, 2, 5, n_blocks // 2, n_blocks - 1} & set(range(n_blocks)))
@@ -59,7 +60,7 @@ def report(runs: list[JobResult]) -> str:
         mean, half = band(curves)
         cells = ' | '.join(_fmt(mean[k], half[k]) for k in points)
         reach = 'n/a'
-        if innate_level is not None and lb != 'innate':
+        if innate_level is not None and rs[0].spec['condition'] != 'innate':
             hit = np.nonzero(mean >= innate_level)[0]
             reach = f'ep {(hit[0] + 1) * block}' if hit.size else 'never'
         ev = np.mean([[e['reached'] for e in r.evals] for r in rs])
