@@ -86,7 +86,8 @@ def proposal(module: str, t: float, value: float, u=(0.5, -0.5)) -> Proposal:
 def selector(mode: str = 'episode', beta: float = 1.0, seed: int = 0) -> Selector:
     return Selector(['innate', 'view', 'place'], [0.9, 0.8, 0.7], [0.6, 0.3, 0.125],
                     [0.25, 0.5, 1.2],
-                    ArbiterParams(selection=mode, stale_periods=1.5, start_timeout=0.5), beta,
+                    ArbiterParams(selection=mode, stale_periods=1.5, start_timeout=0.5,
+                                  rule='paper', scale_min=0.1), beta,
                     np.random.default_rng(seed))
 
 

@@ -179,7 +179,8 @@ def test_selection_limits_and_availability():
 
 
 def arbiter_params(selection: str) -> ArbiterParams:
-    return ArbiterParams(selection=selection, stale_periods=1.5, start_timeout=0.5)
+    return ArbiterParams(selection=selection, stale_periods=1.5, start_timeout=0.5,
+                         rule='paper', scale_min=0.1)
 
 
 def test_arbiter_frequencies_and_modes():

@@ -89,7 +89,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--seeds', type=int, default=5, help='number of seeds (0..N-1)')
     p.add_argument('--first-seed', type=int, default=0, help='first seed (default 0)')
     p.add_argument('--eval-episodes', type=int, default=10,
-                   help='evaluation episodes per start point A-E at the end (default 10)')
+                   help='evaluation episodes per start point A-E, at the end and at every '
+                        'evaluation point (default 10)')
+    p.add_argument('--eval-every', type=int, default=50, metavar='N',
+                   help='every N learning episodes (and before the first), evaluate from each '
+                        'start A-E with learning off: the Fig. 3a curve (paper Fig. 2 caption; '
+                        'default 50; 0 = off, Fig. 3a from the learning episodes)')
+    p.add_argument('--preset', default='paper', choices=presets(),
+                   help='parameter preset: config/clis.yaml (paper, default) with the '
+                        'overrides of config/clis_PRESET.yaml (improved: beyond the paper)')
+    p.add_argument('--ablation', action='store_true',
+                   help='with --preset P: also Async with each change of P alone (on the '
+                        'paper preset) and with all of them (P:async), on the same seeds')
     p.add_argument('--train-start', default='wander',
                    help="where learning episodes start: 'wander' (default, the paper: the hand-"
                         "made wander policy moves the robot from where the last episode ended),"
@@ -118,6 +129,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--figures-only', action='store_true', help='only merge and draw')
     p.add_argument('--quiet', action='store_true', help='no progress output')
     p.set_defaults(func=main)
+
+
+def presets() -> tuple[str, ...]:
+    """The parameter presets: ``paper`` (config/clis.yaml) and every config/clis_NAME.yaml."""
+    from clis_learner.core.config import PRESET_NAMES
+    return PRESET_NAMES()
+
+
+def ablation_conditions(preset: str, base: str = 'async') -> list[str]:
+    """``base`` with each change of ``preset`` alone (its groups,
+    :func:`~clis_learner.core.config.preset_groups`) on the paper's parameters:
+    ``async@key=value@...``. All changes together is the preset's own ``base`` condition."""
+    from clis_learner.core.config import preset_groups
+    return [base + ''.join(f'@{k}={v}' for k, v in items.items())
+            for items in preset_groups(preset).values()]
 
 
 def _overrides(items: list[str]) -> dict[str, Any]:
@@ -190,10 +216,27 @@ def main(args: argparse.Namespace) -> int:
     runs_dir = out / 'runs'
     runs_dir.mkdir(parents=True, exist_ok=True)
     conditions = [c for c in args.conditions.split(',') if c.strip()]
+    from clis_learner.core.config import preset_overrides as _preset
+    preset_overrides = _preset(args.preset)
+    with_preset = [True] * len(conditions)         # the preset applies to the conditions given
+    if args.ablation:
+        if args.preset == 'paper':
+            print('clis experiment: --ablation needs --preset (the changes to toggle)',
+                  file=sys.stderr)
+            return 2
+        singles = [c for c in ablation_conditions(args.preset) if c not in conditions]
+        conditions += singles                      # each change alone, on the paper preset
+        with_preset += [False] * len(singles)
+        if 'async' not in conditions:              # all of them: the preset's Async
+            conditions.append('async')
+            with_preset.append(True)
     try:
         parsed = [parse_condition(c) for c in conditions]
     except argparse.ArgumentTypeError as exc:
         print(f'clis experiment: {exc}', file=sys.stderr)
+        return 2
+    if args.eval_every < 0:
+        print('clis experiment: --eval-every must be >= 0', file=sys.stderr)
         return 2
     if min(args.episodes, args.seeds, args.workers, args.block) < 1:
         print('clis experiment: --episodes, --seeds, --workers and --block must be >= 1',
@@ -209,14 +252,18 @@ def main(args: argparse.Namespace) -> int:
     common = _overrides(args.sets)
     sim_overrides = _overrides(args.sim_sets)
     specs = []
-    for label, (name, overrides) in zip(conditions, parsed):
+    for label, (name, overrides), preset in zip(conditions, parsed, with_preset):
+        label = label.strip()
+        if preset and preset_overrides:
+            label, overrides = f'{args.preset}:{label}', {**preset_overrides, **overrides}
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             specs.append(JobSpec(
-                index=len(specs), label=label.strip(), condition=name,
+                index=len(specs), label=label, condition=name,
                 overrides={**common, **overrides}, sim_overrides=sim_overrides, seed=seed,
                 episodes=args.episodes, eval_episodes=args.eval_episodes,
                 arena=str(args.arena) if args.arena else None, run_dir=str(runs_dir),
-                block=args.block, train_start=args.train_start))
+                block=args.block, train_start=args.train_start, eval_every=args.eval_every,
+                preset=args.preset if preset else 'paper'))
     try:  # validate every parameter set before starting hours of work
         for spec in specs:
             spec.validate()
@@ -227,7 +274,9 @@ def main(args: argparse.Namespace) -> int:
         'argv': sys.argv, 'conditions': conditions, 'episodes': args.episodes,
         'seeds': list(range(args.first_seed, args.first_seed + args.seeds)),
         'eval_episodes': args.eval_episodes, 'sets': common, 'sim_sets': sim_overrides,
-        'train_start': args.train_start, 'block': args.block,
+        'train_start': args.train_start, 'block': args.block, 'eval_every': args.eval_every,
+        'preset': args.preset, 'ablation': args.ablation,
+        'overrides': {s.label: s.overrides for s in specs},
         'arena': str(args.arena) if args.arena else None, 'backend': args.backend,
         'address': args.address}, indent=2))
     todo = [s for s in specs if not (args.resume or args.figures_only) or not s.done()]
@@ -333,6 +382,9 @@ def merge(results: list[JobResult], out: Path, wall_seconds: float | None) -> di
             'successes_per_block_mean': curves.mean(0).tolist(),
             'successes_per_block_sd': curves.std(0, ddof=1).tolist() if len(runs) > 1 else None,
             'eval_success_rate': float(eval_success), 'eval_mean_time': float(eval_time),
+            'eval_points': runs[0].eval_points(),
+            'eval_successes_mean': (np.mean([res.eval_success_curve() for res in runs], 0)
+                                    .tolist() if runs[0].eval_curve else []),
             'seconds_per_run': float(np.mean([res.seconds for res in runs])),
             'final_diagnostics': _mean_dicts([res.final_diagnostics for res in runs]),
         }

@@ -54,6 +54,35 @@ def _save(fig, path: Path) -> None:
 
 
 def fig3a(results, path: Path) -> None:
+    """Fig. 3a as the paper reads it (its Fig. 2 caption): successes out of the evaluation
+    episodes from A-E (learning off) at every evaluation point, mean and 95% band over seeds.
+    Runs without periodic evaluation: the learning-episode curve (:func:`fig3a_learning`)."""
+    labels = _labels(results)
+    if not all(_runs(results, lb)[0].eval_curve for lb in labels):
+        fig3a_learning(results, path)
+        return
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    n_eval = 50
+    for label in labels:
+        runs = _runs(results, label)
+        n_points = min(len(r.eval_curve) for r in runs)
+        curves = np.array([r.eval_success_curve()[:n_points] for r in runs], float)
+        n_eval = int(runs[0].eval_curve[0]['n'])
+        x = np.array(runs[0].eval_points()[:n_points])
+        mean, half = band(curves)
+        line, = ax.plot(x, mean, label=f'{label} (n={len(runs)})')
+        ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.15)
+    ax.set_xlabel('learning episodes')
+    ax.set_ylabel(f'successes in {n_eval} evaluation episodes (A-E)')
+    ax.set_ylim(0, n_eval)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.2),
+              ncol=2 if len(labels) > 5 else len(labels))
+    ax.set_title('Fig. 3a: evaluation from A-E, learning off (mean, 95% t-band over seeds)')
+    _save(fig, path)
+
+
+def fig3a_learning(results, path: Path) -> None:
     """Successes per block of learning episodes, mean and 95% band over seeds."""
     labels = _labels(results)
     fig, ax = plt.subplots(figsize=(8, 4.2))
@@ -71,7 +100,7 @@ def fig3a(results, path: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.2),
               ncol=2 if len(labels) > 5 else len(labels))
-    ax.set_title('Fig. 3a: learning curves (mean, 95% t-band over seeds)')
+    ax.set_title('successes of the learning episodes (mean, 95% t-band over seeds)')
     _save(fig, path)
 
 
@@ -154,6 +183,43 @@ def fig4(results, path: Path) -> None:
     _save(fig, path)
 
 
+def _mean_map(maps: np.ndarray) -> np.ndarray:
+    """Mean over seeds (axis 0) where every seed has a value; NaN elsewhere."""
+    p = np.full(maps.shape[1:], np.nan)
+    free = np.isfinite(maps).all(0)
+    p[free] = maps[:, free].mean(0)
+    return p
+
+
+def fig4_modules(results, path: Path) -> None:
+    """Where each module is chosen at the end of learning: Pr(i | x) of the selection rule for
+    every module (rows: multi-module conditions), robot heading to the destination."""
+    labels = [lb for lb in _labels(results) if (_runs(results, lb)[0].place_map or {})
+              .get('modules')]
+    if not labels:
+        return
+    names = list(_runs(results, labels[0])[0].place_map['modules'])
+    fig, axes = plt.subplots(len(labels), len(names), figsize=(3.6 * len(names),
+                             3.4 * len(labels)), squeeze=False)
+    for row, label in enumerate(labels):
+        runs = _runs(results, label)
+        pm = runs[0].place_map
+        xs, ys = np.asarray(pm['x'], float), np.asarray(pm['y'], float)
+        d = xs[1] - xs[0] if len(xs) > 1 else 0.1
+        for col, name in enumerate(names):
+            ax = axes[row, col]
+            p = _mean_map(np.array([r.place_map['modules'][name] for r in runs], float))
+            im = ax.imshow(p, origin='lower', vmin=0, vmax=1, cmap='viridis',
+                           extent=(xs[0] - d / 2, xs[-1] + d / 2, ys[0] - d / 2, ys[-1] + d / 2),
+                           interpolation='nearest')
+            draw_arena(ax, runs[0].arena)
+            ax.set_title(f'{label}: Pr({name} | x) ({len(runs)} seeds)', fontsize=8)
+        fig.colorbar(im, ax=axes[row, -1], fraction=0.046)
+    fig.suptitle('Fig. 4 for every module: probability of being selected at the end of '
+                 'learning', fontsize=10)
+    _save(fig, path)
+
+
 def fig5(results, path: Path) -> None:
     """Mean time to the destination from each start (evaluation episodes), per condition."""
     labels = _labels(results)
@@ -206,7 +272,9 @@ def fig_diagnostics(results, path: Path) -> None:
 def draw_all(out: Path, results, summary: dict) -> list[Path]:
     """Draw every figure into ``out``; return the files written."""
     paths = []
-    for name, fn in (('fig3a.png', fig3a), ('fig3bc.png', fig3bc), ('fig4.png', fig4),
+    for name, fn in (('fig3a.png', fig3a), ('fig3a_learning.png', fig3a_learning),
+                     ('fig3bc.png', fig3bc), ('fig4.png', fig4),
+                     ('fig4_modules.png', fig4_modules),
                      ('fig5.png', fig5), ('diagnostics.png', fig_diagnostics)):
         fn(results, out / name)
         if (out / name).exists():

@@ -45,7 +45,8 @@ def report(runs: list[JobResult]) -> str:
     labels = list(dict.fromkeys(r.spec['label'] for r in runs))
     by = {lb: [r for r in runs if r.spec['label'] == lb] for lb in labels}
     block = runs[0].block
-    innate = by.get('innate')
+    innate = by.get('innate') or next((rs for rs in by.values()
+                                       if rs[0].spec['condition'] == 'innate'), None)
     innate_level = (float(np.mean([r.success_curve() for r in innate])) if innate else None)
     n_blocks = min(len(r.success_curve()) for r in runs)
     points = sorted({0, 2, 5, n_blocks // 2, n_blocks - 1} & set(range(n_blocks)))
@@ -59,7 +60,7 @@ def report(runs: list[JobResult]) -> str:
         mean, half = band(curves)
         cells = ' | '.join(_fmt(mean[k], half[k]) for k in points)
         reach = 'n/a'
-        if innate_level is not None and lb != 'innate':
+        if innate_level is not None and rs[0].spec['condition'] != 'innate':
             hit = np.nonzero(mean >= innate_level)[0]
             reach = f'ep {(hit[0] + 1) * block}' if hit.size else 'never'
         ev = np.mean([[e['reached'] for e in r.evals] for r in rs])
@@ -104,8 +105,115 @@ def report(runs: list[JobResult]) -> str:
     return '\n'.join(out)
 
 
+def _ci(values) -> str:
+    values = np.asarray(values, float)[:, None]
+    mean, half = band(values)
+    return _fmt(mean[0], half[0])
+
+
+def innate_eval_level(runs: list[JobResult]) -> float | None:
+    """Innate's level on the evaluation curve: its mean successes over seeds and points (its
+    policy is fixed, so every point estimates the same number)."""
+    curves = [r.eval_success_curve() for r in runs
+              if r.spec['condition'] == 'innate' and r.eval_curve]
+    return float(np.mean([np.mean(c) for c in curves])) if curves else None
+
+
+def episodes_to_level(runs: list[JobResult], level: float) -> int | None:
+    """First evaluation point whose mean over seeds reaches ``level`` (None: never)."""
+    n = min(len(r.eval_curve) for r in runs)
+    mean = np.mean([r.eval_success_curve()[:n] for r in runs], axis=0)
+    hit = np.nonzero(mean >= level)[0]
+    return runs[0].eval_points()[hit[0]] if hit.size else None
+
+
+def eval_report(runs: list[JobResult]) -> str:
+    """Tables of the evaluation curve (Fig. 3a, paper protocol), the thesis test (each learned
+    module of a multi-module run evaluated alone) and the importance weights."""
+    runs = [r for r in runs if r.eval_curve]
+    if not runs:
+        return ''
+    labels = list(dict.fromkeys(r.spec['label'] for r in runs))
+    by = {lb: [r for r in runs if r.spec['label'] == lb] for lb in labels}
+    level = innate_eval_level(runs)
+    n_eval = int(runs[0].eval_curve[0]['n'])
+    every = sorted({p for r in runs for p in r.eval_points()})
+    show = [p for p in (0, 50, 100, 150, 300, 500) if p in every] + [every[-1]]
+    show = list(dict.fromkeys(show))
+    out = [f'Evaluation curve (Fig. 3a): successes in {n_eval} episodes from A-E with learning '
+           'off, after the given number of learning episodes (mean ± 95% t-band over seeds)'
+           + (f"; Innate's level = {level:.1f}." if level is not None else '.'), '',
+           '| condition | seeds | ' + ' | '.join(f'ep {p}' for p in show)
+           + " | episodes to Innate's level | final eval success |",
+           '|---|---|' + '---|' * len(show) + '---|---|']
+    for lb, rs in by.items():
+        n = min(len(r.eval_curve) for r in rs)
+        curves = np.array([r.eval_success_curve()[:n] for r in rs], float)
+        pts = rs[0].eval_points()[:n]
+        mean, half = band(curves)
+        cells = ' | '.join(_fmt(mean[pts.index(p)], half[pts.index(p)]) if p in pts
+                           else '-' for p in show)
+        reach = 'n/a'
+        if level is not None and rs[0].spec['condition'] != 'innate':
+            hit = episodes_to_level(rs, level)
+            reach = 'never' if hit is None else str(hit)
+        final = 100.0 * curves[:, -1] / n_eval
+        out.append(f'| {lb} | {len(rs)} | {cells} | {reach} | {_ci(final)}% (ep {pts[-1]}) |')
+    multi = [lb for lb in labels if by[lb][0].solo]
+    def single(multi_label: str, name: str) -> str | None:
+        """The single-module label of the same preset (``improved:place`` for
+        ``improved:async``), else the paper preset's."""
+        prefix = multi_label.split(':')[0] + ':' if ':' in multi_label.split('@')[0] else ''
+        for cand in (prefix + name, name):
+            if cand in by and len(by[cand][0].modules) == 1:
+                return cand
+        return None
+    if multi:
+        out += ['', 'The thesis measured directly: each learned module, trained inside the '
+                'multi-module condition, then evaluated acting alone from A-E (learning off, '
+                f"{n_eval} episodes, the same evaluation draws as the single-module runs' "
+                'last point); success % (mean ± 95% t-band over seeds).', '',
+                '| trained in | module | alone-evaluated success | trained alone (same episodes)'
+                ' |', '|---|---|---|---|']
+        for lb in multi:
+            for name in by[lb][0].solo:
+                inside = [100.0 * r.solo[name]['reached'] / r.solo[name]['n'] for r in by[lb]]
+                alone, ref = 'n/a', single(lb, name)
+                if ref is not None:
+                    alone = _ci([100.0 * r.eval_success_curve()[-1] / n_eval
+                                 for r in by[ref]]) + f'% ({ref})'
+                out.append(f'| {lb} | {name} | {_ci(inside)}% | {alone} |')
+        out += ['', 'Importance weights of the learned modules over the last third of learning '
+                '(median over episodes of the per-episode median weight c_median -- the product'
+                " c_l of (8) under the paper's rules, the per-step min(rho_bar, rho_l) under "
+                'retrace -- and of the effective sample size (sum c)^2 / sum c^2 in steps; '
+                'mean over seeds).', '',
+                '| condition | view: median weight | view: ESS | place: median weight | '
+                'place: ESS |', '|---|---|---|---|---|']
+        for lb in multi:
+            cells = []
+            for name in ('view', 'place'):
+                med, ess = [], []
+                for r in by[lb]:
+                    last = r.episodes[2 * len(r.episodes) // 3:]
+                    med.append(_finite_stat([e.get(f'c_median_{name}', np.nan) for e in last],
+                                            np.median))
+                    ess.append(_finite_stat([e.get(f'ess_{name}', np.nan) for e in last],
+                                            np.median))
+                cells += [f'{_finite_stat(med):.3g}', f'{_finite_stat(ess):.1f}']
+            out.append(f'| {lb} | ' + ' | '.join(cells) + ' |')
+    return '\n'.join(out)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('report', help='tables of measured results from experiment folders',
                        description=__doc__)
     p.add_argument('folders', type=Path, nargs='+', help='output folders of clis experiment')
-    p.set_defaults(func=lambda args: print(report(load_runs(args.folders))) or 0)
+    p.set_defaults(func=_main)
+
+
+def _main(args: argparse.Namespace) -> int:
+    runs = load_runs(args.folders)
+    ev = eval_report(runs)
+    print((ev + '\n\n' if ev else '') + report(runs))
+    return 0

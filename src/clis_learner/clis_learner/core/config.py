@@ -17,15 +17,20 @@ from typing import Any
 from clis_modules.core.modules import ModuleSetParams
 from cr_sim.core.params import (
     as_dict,
+    config_dir,
     dataclass,
+    flatten,
     load_params,
     param,
+    ros_parameters,
 )
 
-from clis_learner.core.corrections import CORRECTIONS
+from clis_learner.core.corrections import BEHAVIOURS, CORRECTIONS
 from clis_learner.core.resample import RESAMPLE_METHODS
+from clis_learner.core.updates import POLICY_UPDATES, STEP_NORMS, VALUE_UPDATES
 
-__all__ = ['LearnerParams', 'ClisParams', 'load_clis_params', 'params_hash', 'CLIS_NODE']
+__all__ = ['LearnerParams', 'ClisParams', 'load_clis_params', 'params_hash', 'CLIS_NODE',
+           'PRESET_NAMES', 'preset_overrides', 'preset_groups', 'PRESET_GROUPS']
 
 #: Node key of the parameter file: every node reads the same CLIS parameters.
 CLIS_NODE = '/**'
@@ -42,6 +47,27 @@ class LearnerParams:
     policy_step: str = param(choices=('raw', 'scaled'),
                              doc='(9) on the raw gradient, or scaled by the inverse Fisher '
                                  'information of the Gaussian (10)')
+    value_update: str = param(choices=VALUE_UPDATES,
+                              doc="'paper' = TD(lambda) with the IS product (8); 'retrace' = "
+                                  'per-decision truncated traces (Retrace / V-trace)')
+    policy_update: str = param(choices=POLICY_UPDATES,
+                               doc="'paper' = (9) with the episode's IS product; 'offpac' = "
+                                   'off-policy actor-critic, per-step truncated ratio, V_i '
+                                   'baseline')
+    behaviour: str = param(choices=BEHAVIOURS,
+                           doc="density of the behaviour in the ratio: 'acting' module (6)(7) "
+                               "or the selection 'mixture' sum_j Pr(j|x) pi_j (balance "
+                               'heuristic)')
+    rho_bar: float = param(0.0, 1e6, doc='truncation level of the per-step ratio of retrace '
+                                         '/ offpac (V-trace rho-bar = c-bar)')
+    imitation: float = param(0.0, 1e3, doc='weight kappa of the imitation term kappa max(0, '
+                             'G - V_i) d ln pi (CRAIL / self-imitation); 0 = off (paper)')
+    max_mean_step: float = param(0.0, 1e3, doc='trust region: largest change of the policy '
+                                 'mean at a state of the episode, in sigma; 0 = none (paper)')
+    step_norm: str = param(choices=STEP_NORMS,
+                           doc="'none' = alpha as given; 'features' = alpha / (b . b) per step "
+                               '(normalised LMS: each step moves V and the mean at x by alpha '
+                               'of its error, whatever the feature mass)')
 
 
 @dataclass(frozen=True)
@@ -49,6 +75,52 @@ class ClisParams(ModuleSetParams):
     """Everything in ``clis.yaml``: the modules' and arbiter's sections, and the learner's."""
 
     learner: LearnerParams = param(doc='section learner')
+
+
+#: The changes of a preset that ``clis experiment --ablation`` toggles together (one row each);
+#: a key of a preset file in no group is a change of its own.
+PRESET_GROUPS: dict[str, tuple[str, ...]] = {
+    'retrace': ('learner.value_update', 'learner.rho_bar', 'learner.correction'),
+    'offpac': ('learner.policy_update',),
+    'imitation': ('learner.imitation',),
+    'mixture': ('learner.behaviour',),
+    'selection': ('arbiter.rule', 'common.beta', 'arbiter.scale_min'),
+    'steps': ('learner.step_norm', 'learner.policy_step', 'learner.max_mean_step',
+              'view.policy.alpha', 'place.policy.alpha'),
+}
+
+
+def PRESET_NAMES() -> tuple[str, ...]:  # noqa: N802 - a constant computed from the files
+    """``paper`` (config/clis.yaml) and NAME of every ``config/clis_NAME.yaml``."""
+    names = sorted(p.stem[len('clis_'):] for p in config_dir().glob('clis_*.yaml'))
+    return ('paper', *names)
+
+
+def preset_overrides(name: str) -> dict[str, Any]:
+    """The dotted overrides of preset ``name`` (``{}`` for ``paper``): the
+    ``/**: ros__parameters:`` of ``config/clis_NAME.yaml``, a partial CLIS parameter file
+    (ROS nodes take it as a second ``--params-file`` after clis.yaml)."""
+    if name == 'paper':
+        return {}
+    path = config_dir() / f'clis_{name}.yaml'
+    if not path.is_file():
+        raise ValueError(f'unknown preset {name!r}: choose from {", ".join(PRESET_NAMES())}')
+    return flatten(ros_parameters(path, CLIS_NODE))
+
+
+def preset_groups(name: str) -> dict[str, dict[str, Any]]:
+    """The overrides of preset ``name`` grouped into its changes (:data:`PRESET_GROUPS`),
+    in the order of the groups; keys in no group form a group of their own."""
+    flat = preset_overrides(name)
+    out: dict[str, dict[str, Any]] = {}
+    for group, keys in PRESET_GROUPS.items():
+        items = {k: flat[k] for k in keys if k in flat}
+        if items:
+            out[group] = items
+    for k, v in flat.items():
+        if not any(k in items for items in out.values()):
+            out[k] = {k: v}
+    return out
 
 
 def load_clis_params(path: str | os.PathLike | None = None,

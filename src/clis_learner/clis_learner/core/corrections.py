@@ -10,8 +10,17 @@ A correction is any object with a ``name`` and ``ratio(pi_target, pi_behaviour) 
 registering a factory in :data:`CORRECTIONS`; ``learner.correction`` in ``clis.yaml`` picks one
 by name (its ``choices`` come from this registry).
 
-Whatever the correction, the learner sets ``rho = 1`` exactly on the steps where the target is
-the behaviour module (the ratio of a density to itself), without evaluating any density.
+Whatever the correction, with ``learner.behaviour = acting`` the learner sets ``rho = 1``
+exactly on the steps where the target is the behaviour module (the ratio of a density to
+itself), without evaluating any density.
+
+Behaviour density (``learner.behaviour``, beyond the paper): ``acting`` is the paper's
+``pi_i'``, the density of the module that acted. ``mixture`` is the density of the selection
+mixture, ``sum_j Pr(j | x) pi_j(x_j, u)`` with ``Pr`` of the arbiter's rule (3): the balance
+heuristic of multiple importance sampling (Veach & Guibas 1995), which CRAIL (Uchibe 2018,
+CLIS's successor) uses as its behaviour policy. Every step of every episode is then a sample of
+the same mixture, the ratio of a target is bounded by ``1 / Pr(i | x)`` (up to ``epsilon``) and
+it is the same whichever module happened to act (:func:`mixture_density`).
 """
 
 from __future__ import annotations
@@ -23,7 +32,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ['Correction', 'TruncatedRatio', 'ClippedRatio', 'NoCorrection', 'CORRECTIONS',
-           'make_correction']
+           'make_correction', 'BEHAVIOURS', 'mixture_density']
+
+#: ``learner.behaviour``: the density of the acting module (paper), or of the selection mixture.
+BEHAVIOURS = ('acting', 'mixture')
 
 
 class Correction(Protocol):
@@ -105,3 +117,27 @@ def make_correction(name: str, epsilon: float) -> Correction:
         raise ValueError(f'unknown correction {name!r}: choose from '
                          f'{", ".join(CORRECTIONS)}') from None
     return factory(epsilon)
+
+
+def mixture_density(pi: ArrayLike, probs: ArrayLike) -> np.ndarray:
+    """Density of the selection mixture at each step (balance heuristic, Veach & Guibas 1995).
+
+    ``pi_mix(x, u) = sum_j Pr(j | x) pi_j(x_j, u)``: the behaviour when the acting module is
+    drawn by (3) with probabilities ``Pr(j | x)`` and then acts by its policy (10) (CRAIL,
+    Uchibe 2018). A target ``i`` among the ``j`` gets ``pi_i / pi_mix <= 1 / Pr(i | x)``.
+
+    Parameters
+    ----------
+    pi : array_like, shape (L, N)
+        ``pi_j(x_j, u_l)`` of every module j at every step l (its state at its latest decision).
+    probs : array_like, shape (L, N) or (N,)
+        ``Pr(j | x)`` of the selection at each step (rows sum to 1), or one row for the episode.
+
+    Returns
+    -------
+    np.ndarray, shape (L,)
+    """
+    pi = np.asarray(pi, dtype=np.float64)
+    probs = np.broadcast_to(np.asarray(probs, dtype=np.float64), pi.shape)
+    # balance heuristic: pi_mix = sum_j Pr(j|x) pi_j(x, u)
+    return np.sum(probs * pi, axis=1)

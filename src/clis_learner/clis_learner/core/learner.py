@@ -13,6 +13,16 @@ module i (the *target*), whichever module acted (the *behaviour* i'):
 5. the policy gradient with IS (9) on ``W_i`` (and ``sigma_i`` if ``learn_sigma``) for the
    learned modules.
 
+Beyond the paper (``clis.yaml`` section ``learner``, :mod:`~clis_learner.core.updates`,
+:mod:`~clis_learner.core.corrections`): ``behaviour = mixture`` replaces ``pi_i'`` of step 3 by
+the selection mixture ``sum_j Pr(j | x) pi_j`` on every step (on-policy steps too);
+``value_update = retrace`` replaces (8) in step 4 and ``policy_update = offpac`` replaces (9)
+in step 5 by per-decision truncated corrections; ``step_norm = features`` divides the step
+sizes of both by the feature mass ``b . b``; ``imitation > 0`` adds behaviour cloning of the
+executed actions where their return beat V_i (CRAIL; self-imitation) to step 5;
+``max_mean_step > 0`` bounds the change of the policy mean at the episode's states (a trust
+region).
+
 All densities of step 3 use the parameters the episode was played with: every ratio is computed
 before any module is updated, so the order of the modules does not matter. The result depends
 only on the memory and the parameters (no randomness).
@@ -30,8 +40,9 @@ Diagnostics (one dict per module, all floats, see :data:`DIAGNOSTIC_KEYS`):
 n_steps         L, decisions of the module in the episode
 on_policy       share of steps where the module itself acted
 rho_mean        mean of rho_l
-c_final         c after the last step (importance product of the whole episode)
-c_min, c_median min and median of c_l over the steps
+c_final         c after the last step (importance product of the whole episode); with
+                retrace: the importance weight min(rho_bar, rho_l) of the last step's TD error
+c_min, c_median min and median of c_l over the steps (retrace: of the per-step weights)
 ess             (sum_l c_l)^2 / sum_l c_l^2, effective sample size of the steps' weights
 v_start         V_i(x_0) before the update
 ret             sum_l gamma_i^l r_l, the discounted return on module i's grid
@@ -48,15 +59,24 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
+from clis_modules.core.arbiter import selection_probs
 from clis_modules.core.modules import ModuleCore
 from clis_modules.core.policy import ACTION_DIM
 import numpy as np
 
 from clis_learner.core.config import ClisParams
-from clis_learner.core.corrections import make_correction
+from clis_learner.core.corrections import make_correction, mixture_density
 from clis_learner.core.memory import EpisodeMemory
 from clis_learner.core.resample import latest_index, resample_actions, sum_rewards
-from clis_learner.core.updates import pg_weights, td_lambda_is
+from clis_learner.core.updates import (
+    MASS_MIN,
+    imitation_weights,
+    offpac_weights,
+    pg_weights,
+    step_sizes,
+    td_lambda_is,
+    td_retrace,
+)
 
 __all__ = ['DIAGNOSTIC_KEYS', 'Replay', 'Learner']
 
@@ -108,6 +128,8 @@ class Learner:
         self.modules = list(modules)
         self.by_name = {m.name: m for m in self.modules}
         self.params = params.learner
+        self.arbiter = params.arbiter
+        self.beta = params.common.beta
         self.correction = make_correction(self.params.correction, params.common.epsilon)
 
     def learn(self, memory: EpisodeMemory, update: bool = True) -> dict[str, dict[str, float]]:
@@ -138,6 +160,13 @@ class Learner:
         on = beh == memory.index(m.name)
         rho = np.ones(len(t_i))
         off = ~on
+        r = sum_rewards(*memory.rewards(), t_i)
+        if self.params.behaviour == 'mixture':
+            pi, probs = self.mixture_terms(memory, t_i, U)
+            # balance heuristic: rho = pi_i / sum_j Pr(j|x) pi_j on every step (on-policy too)
+            rho = self.correction.ratio(pi[:, self.modules.index(m)],
+                                        mixture_density(pi, probs))
+            return Replay(t_i, B, U, rho, r, on)
         if off.any():
             pi_target = m.policy.density_batch(B[off], U[off])
             pi_behaviour = np.empty(int(off.sum()))
@@ -154,8 +183,36 @@ class Learner:
                     B_j[k], U[off][sel])
             # (7) rho~ = (pi_i + eps) / (pi_i' + eps); rho = 1 exactly where i' = i
             rho[off] = self.correction.ratio(pi_target, pi_behaviour)
-        r = sum_rewards(*memory.rewards(), t_i)
         return Replay(t_i, B, U, rho, r, on)
+
+    def mixture_terms(self, memory: EpisodeMemory, t: np.ndarray, U: np.ndarray  # noqa: N803
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Densities of every module and the selection probabilities on a grid ``t``.
+
+        Module j's density ``pi_j(x_j, u_l)`` is at its latest decision ``<= t_l``; the
+        probabilities are those of the arbiter's rule (3): at the start state for
+        ``arbiter.selection = episode`` (one draw per episode), at each step's latest values
+        for ``decision``.
+
+        Returns
+        -------
+        pi : np.ndarray, shape (L, N)
+        probs : np.ndarray, shape (L, N) or (N,)
+        """
+        pi = np.empty((len(t), len(self.modules)))
+        values = np.empty((len(t), len(self.modules)))
+        for j, mod in enumerate(self.modules):
+            t_j, B_j = memory.decisions(mod.name)  # noqa: N806
+            if B_j is None:
+                raise ValueError(f'module {mod.name!r} never recorded a decision')
+            k = latest_index(t_j, t)
+            pi[:, j] = mod.policy.density_batch(B_j[k], U)
+            values[:, j] = B_j[k] @ mod.w
+        gammas = [mod.gamma for mod in self.modules]
+        rows = values[:1] if self.arbiter.selection == 'episode' else values
+        probs = np.array([selection_probs(v, gammas, self.beta, None, self.arbiter.rule,
+                                          self.arbiter.scale_min) for v in rows])
+        return pi, probs[0] if self.arbiter.selection == 'episode' else probs
 
     # ------------------------------------------------------------------ step 4-5
 
@@ -167,18 +224,46 @@ class Learner:
             return out
         n_steps = len(rp.r)
         v_start = m.value(rp.B[0])
-        # (8) TD(lambda) with importance sampling
-        w_new, delta, c = td_lambda_is(m.w, rp.B, rp.r, rp.rho, m.gamma, self.params.lambda_,
-                                       m.value_params.alpha)
+        prm = self.params
+        v_before = rp.B @ m.w
+        alpha = (m.value_params.alpha if prm.step_norm == 'none'
+                 else step_sizes(m.value_params.alpha, rp.B, prm.step_norm))
+        if prm.value_update == 'retrace':
+            # Retrace(lambda) / V-trace: per-decision truncated weights (updates.td_retrace)
+            w_new, delta, c = td_retrace(m.w, rp.B, rp.r, rp.rho, m.gamma, prm.lambda_,
+                                         alpha, prm.rho_bar)
+        else:
+            # (8) TD(lambda) with importance sampling
+            w_new, delta, c = td_lambda_is(m.w, rp.B, rp.r, rp.rho, m.gamma, prm.lambda_,
+                                           alpha)
         grad_norm = 0.0
         W_new, sigma_new = m.W, m.sigma  # noqa: N806
         if m.learned:
             pp = m.policy_params
-            # (9) sum over the episode of gamma_i^t r c e, e = accumulated d ln pi / d W
-            d_w, d_sigma = m.policy.weighted_scores(rp.B, rp.U, pg_weights(rp.r, c, m.gamma))
+            if prm.policy_update == 'offpac':
+                # Off-PAC / V-trace actor: min(rho_bar, rho_l) A_l d ln pi, V_i the baseline
+                g = offpac_weights(v_before, rp.r, rp.rho, m.gamma, prm.lambda_, prm.rho_bar)
+            else:
+                # (9) sum over the episode of gamma_i^t r c e, e = accumulated d ln pi / d W
+                g = pg_weights(rp.r, c, m.gamma)
+            if prm.imitation > 0.0:
+                # CRAIL / self-imitation: clone u_l where G_l beat V_i(x_l) (updates module)
+                g = g + imitation_weights(v_before, rp.r, m.gamma, prm.imitation)
+            if prm.step_norm == 'features':
+                g = g / np.maximum(np.einsum('ln,ln->l', rp.B, rp.B), MASS_MIN)
+            d_w, d_sigma = m.policy.weighted_scores(rp.B, rp.U, g)
             if self.params.policy_step == 'scaled':
                 d_w *= m.sigma ** 2 / m.v_max ** 2
                 d_sigma *= m.sigma ** 2 / (2 * ACTION_DIM)
+            if prm.max_mean_step > 0.0:
+                # trust region (cf. TRPO, Schulman et al. 2015): the episode's summed update may
+                # move the mean v_max W b at any of its states by at most max_mean_step sigma
+                # (KL <= max_mean_step^2 / 2 per state); a long episode stuck in one state no
+                # longer adds up to a step many times the error
+                shift = m.v_max * pp.alpha * np.linalg.norm(rp.B @ d_w.T, axis=1).max()
+                limit = prm.max_mean_step * m.sigma
+                if shift > limit:
+                    d_w = d_w * (limit / shift)
             grad_norm = float(np.linalg.norm(d_w))
             # (9) W_i <- W_i + alpha_i gamma_i^t r c_i e_i
             W_new = m.W + pp.alpha * d_w  # noqa: N806

@@ -159,8 +159,9 @@ def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -
     Returns
     -------
     dict or None
-        ``{'x': (nx,), 'y': (ny,), 'p': (ny, nx)}``; None without a place module or with one
-        module only.
+        ``{'x': (nx,), 'y': (ny,), 'p': (ny, nx), 'modules': {name: (ny, nx)}}`` (``p``: the
+        place module's; ``modules``: every module's Pr(i | x)); None without a place module or
+        with one module only.
     """
     if agent.place is None or len(agent.modules) < 2:
         return None
@@ -170,7 +171,7 @@ def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -
     dest = sim.arena.destination
     loc = agent.place.localizer
     i_place = agent.modules.index(agent.place)
-    p_map = np.full((len(ys), len(xs)), np.nan)
+    p_all = np.full((len(ys), len(xs), len(agent.modules)), np.nan)
     for iy, y in enumerate(ys):
         for ix, x in enumerate(xs):
             heading = math.atan2(dest.y - y, dest.x - x)
@@ -183,11 +184,13 @@ def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -
             loc.set_belief(onehot)
             feats = [m.features(obs.dest_bearing, obs.d_o, obs.landmark_bearings)
                      for m in agent.modules]
+            arb = agent.params.arbiter
             probs = selection_probs(agent.values(feats), agent.gammas,
-                                    agent.params.common.beta)
-            p_map[iy, ix] = probs[i_place]
+                                    agent.params.common.beta, None, arb.rule, arb.scale_min)
+            p_all[iy, ix] = probs
     loc.reset()
-    return {'x': xs.tolist(), 'y': ys.tolist(), 'p': p_map.tolist()}
+    return {'x': xs.tolist(), 'y': ys.tolist(), 'p': p_all[:, :, i_place].tolist(),
+            'modules': {m.name: p_all[:, :, k].tolist() for k, m in enumerate(agent.modules)}}
 
 
 def arena_dict(arena: Arena) -> dict:
@@ -218,6 +221,8 @@ class JobSpec:
     run_dir: str
     block: int = 50
     train_start: str = 'wander'
+    eval_every: int = 0
+    preset: str = 'paper'
 
     def load(self) -> tuple[ClisParams, SimParams, Arena]:
         """The parameters of this run (validated: a bad override raises naming the key)."""
@@ -254,6 +259,18 @@ class JobResult:
     seconds: float
     final_diagnostics: dict = field(default_factory=dict)
     params_hash: str = ''
+    eval_curve: list[dict] = field(default_factory=list)
+    solo: dict = field(default_factory=dict)
+
+    def eval_success_curve(self) -> list[float]:
+        """Successes out of ``n`` evaluation episodes (A-E, learning off) at each evaluation
+        point (after 0, ``eval_every``, ... learning episodes); empty without periodic
+        evaluation."""
+        return [float(p['reached']) for p in self.eval_curve]
+
+    def eval_points(self) -> list[int]:
+        """Learning episodes done at each evaluation point."""
+        return [int(p['episode']) for p in self.eval_curve]
 
     def _blocks(self, key: str) -> np.ndarray:
         values = np.array([row.get(key, np.nan) for row in self.episodes], float)
@@ -304,11 +321,23 @@ def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -
     agent = Agent(params, spec.condition, arena, np.random.default_rng([spec.seed, 2]),
                   sim_params.robot.wheel_base)
     base = {'label': spec.label, 'condition': spec.condition, 'seed': spec.seed}
-    episodes, evals = [], []
+    episodes, evals, eval_curve = [], [], []
+
+    def evaluate_now(learned: int) -> None:
+        rows = evaluate(agent, arena, sim_params, spec.seed, learned, spec.eval_episodes)
+        eval_curve.append({'episode': learned, 'reached': int(sum(r['reached'] for r in rows)),
+                           'n': len(rows), **{f'reached_{s}': int(sum(
+                               r['reached'] for r in rows if r['start'] == s))
+                               for s in arena.start_names}})
+
+    if spec.eval_every > 0:
+        evaluate_now(0)
     for ep in range(spec.episodes):
         start, heading = draw_start(spec.train_start, arena, start_rng)
         row = run_episode(sim, agent, start, heading, learn=True)
         episodes.append({**base, 'phase': 'train', 'episode': ep, **row})
+        if spec.eval_every > 0 and (ep + 1) % spec.eval_every == 0:
+            evaluate_now(ep + 1)
         if progress is not None and ((ep + 1) % 10 == 0 or ep + 1 == spec.episodes):
             recent = episodes[-spec.block:]
             progress(ep + 1, f'{spec.label} s{spec.seed} ep {ep + 1} '
@@ -318,6 +347,7 @@ def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -
             row = run_episode(sim, agent, name, None, learn=False)
             evals.append({**base, 'phase': 'eval', 'episode': k, **row})
     place_map = place_selection_map(agent, sim)
+    solo = solo_evaluation(agent, params, arena, sim_params, spec) if spec.eval_every > 0 else {}
     ckpt = JobSpec(**asdict(spec)).result_path().with_suffix('.npz')
     save_checkpoint(ckpt, agent.modules, params_hash(params),
                     {'label': spec.label, 'seed': spec.seed, 'episodes': spec.episodes})
@@ -334,7 +364,78 @@ def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -
     return JobResult(spec=asdict(spec), modules=agent.names, block=spec.block,
                      episodes=episodes, evals=evals, place_map=place_map,
                      arena=arena_dict(arena), seconds=time.perf_counter() - t0,
-                     final_diagnostics=final, params_hash=params_hash(params))
+                     final_diagnostics=final, params_hash=params_hash(params),
+                     eval_curve=eval_curve, solo=solo)
+
+
+class _SwappedRng:
+    """Context: every random draw of ``agent`` (proposals, selections) comes from ``rng``
+    inside the block, so evaluation episodes leave the learning run's random stream as it was
+    (a run with periodic evaluation learns exactly as one without)."""
+
+    def __init__(self, agent: Agent, rng: np.random.Generator) -> None:
+        self.agent, self.rng = agent, rng
+
+    def __enter__(self) -> None:
+        self.saved = ([d.rng for d in self.agent.deciders], self.agent.selector.arbiter.rng)
+        for d in self.agent.deciders:
+            d.rng = self.rng
+        self.agent.selector.arbiter.rng = self.rng
+
+    def __exit__(self, *exc: Any) -> None:
+        for d, r in zip(self.agent.deciders, self.saved[0]):
+            d.rng = r
+        self.agent.selector.arbiter.rng = self.saved[1]
+
+
+def evaluate(agent: Agent, arena: Arena, sim_params: SimParams, seed: int, point: int,
+             per_start: int) -> list[dict[str, Any]]:
+    """``per_start`` episodes from each start A-E with learning off (paper Fig. 2: the start
+    positions "to evaluate performance during learning").
+
+    The simulator and the agent's draws come from generators of ``(seed, 3, point)`` only:
+    every condition with the same seed sees the same evaluation starts and sensor noise at the
+    same point, and the learning run's own generators are not touched.
+
+    Returns
+    -------
+    list of dict
+        One row per episode (:func:`run_episode`) with its ``start``.
+    """
+    sim = Simulator(arena, sim_params, np.random.default_rng([seed, 3, point, 0]))
+    rows = []
+    with _SwappedRng(agent, np.random.default_rng([seed, 3, point, 1])):
+        for name in arena.start_names:
+            for _ in range(per_start):
+                rows.append(run_episode(sim, agent, name, None, learn=False))
+    return rows
+
+
+def solo_evaluation(agent: Agent, params: ClisParams, arena: Arena, sim_params: SimParams,
+                    spec: JobSpec) -> dict[str, dict[str, float]]:
+    """The thesis measured directly: each learned module of a multi-module run, trained
+    inside it, evaluated acting alone from A-E (learning off), as in its single-module
+    condition (same period, speed limit and evaluation draws as :func:`evaluate` at the last
+    point).
+
+    Returns
+    -------
+    dict
+        ``{module: {'reached': successes, 'n': episodes, 'duration': mean [s]}}``; empty for
+        a single-module run.
+    """
+    if len(agent.modules) < 2:
+        return {}
+    out = {}
+    for m in agent.modules:
+        if not m.learned or m.name not in CONDITIONS:
+            continue
+        solo = Agent(params, m.name, arena, np.random.default_rng(0), sim_params.robot.wheel_base)
+        solo.modules[0].w, solo.modules[0].W, solo.modules[0].sigma = m.w, m.W, m.sigma
+        rows = evaluate(solo, arena, sim_params, spec.seed, spec.episodes, spec.eval_episodes)
+        out[m.name] = {'reached': float(sum(r['reached'] for r in rows)), 'n': float(len(rows)),
+                       'duration': float(np.mean([r['duration'] for r in rows]))}
+    return out
 
 
 def warm_up(spec: JobSpec) -> None:

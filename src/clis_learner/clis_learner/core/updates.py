@@ -1,5 +1,21 @@
 """The update rules of CLIS: TD(lambda) with importance sampling (8), policy gradient with
-importance sampling (9), and the semi-MDP discount (11).
+importance sampling (9), and the semi-MDP discount (11); beyond the paper, per-decision
+truncated corrections (Retrace / V-trace for the values, an off-policy actor-critic for the
+policies) and step sizes normalised by the feature mass.
+
+Which rule (``learner.value_update``, ``learner.policy_update``):
+
+========  ===============================================================================
+paper     (8) and (9): every step weighted by the product ``c_l`` of all ratios so far
+retrace   value: per-decision importance sampling (Precup et al. 2000) with traces cut at
+          ``lambda min(c_bar, rho)`` (Retrace(lambda), Munos et al. 2016) and the TD error
+          weighted by ``min(rho_bar, rho)`` (V-trace, Espeholt et al. 2018): no product over
+          the episode, so an off-policy episode teaches every step where the target agrees
+offpac    policy: ``min(rho_bar, rho_l) A_l d ln pi(x_l, u_l)`` per step with the advantage
+          ``A_l = r_l + gamma_i v_{l+1} - V_i(x_l)`` against the module's own V_i (Off-PAC,
+          Degris et al. 2012; the V-trace actor, Espeholt et al. 2018) instead of (9)'s
+          return times the episode product and no baseline
+========  ===============================================================================
 
 Indexing (our reading of the paper's ``rho~_i(t + tau_i)``): module i's episode is the sequence
 of its decision states ``x_0 .. x_{L-1}`` at times ``t_0 < .. < t_{L-1}``; step ``l`` is the
@@ -18,7 +34,16 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ['C_MAX', 'gamma_i', 'importance_products', 'td_lambda_is', 'pg_weights',
-           'policy_gradient_is']
+           'policy_gradient_is', 'VALUE_UPDATES', 'POLICY_UPDATES', 'STEP_NORMS',
+           'step_sizes', 'td_retrace', 'vtrace_targets', 'offpac_weights',
+           'discounted_returns', 'imitation_weights']
+
+#: ``learner.value_update``, ``learner.policy_update``, ``learner.step_norm``.
+VALUE_UPDATES = ('paper', 'retrace')
+POLICY_UPDATES = ('paper', 'offpac')
+STEP_NORMS = ('none', 'features')
+#: Smallest feature mass ``b . b`` a normalised step divides by (a state with no feature on).
+MASS_MIN = 1e-3
 
 #: Upper clip of the importance product ``c`` (never reached in practice; keeps it finite).
 C_MAX = 1e100
@@ -42,7 +67,7 @@ def importance_products(rho: ArrayLike) -> np.ndarray:
 
 
 def td_lambda_is(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # noqa: N803
-                 gamma_i: float, lambda_: float, alpha: float
+                 gamma_i: float, lambda_: float, alpha: float | ArrayLike
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """TD(lambda) with importance sampling over one episode, eq. (8), online.
 
@@ -65,8 +90,10 @@ def td_lambda_is(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # no
         Rewards ``r_l`` of each step.
     rho : array_like, shape (L,)
         Ratios ``rho~_l`` (7).
-    gamma_i, lambda_, alpha : float
-        Discount per step (11), trace decay, step size.
+    gamma_i, lambda_ : float
+        Discount per step (11), trace decay.
+    alpha : float or array_like, shape (L,)
+        Step size, or one per step (:func:`step_sizes`, beyond the paper).
 
     Returns
     -------
@@ -86,6 +113,8 @@ def td_lambda_is(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # no
     delta = np.empty(n_steps)
     decay = (lambda_ * gamma_i * rho).tolist()
     r_list, c_list = np.asarray(r, dtype=np.float64).tolist(), c.tolist()
+    alpha_l = (np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_steps,)).tolist()
+               if np.ndim(alpha) else [float(alpha)] * n_steps)
     for l in range(n_steps):  # noqa: E741 - the paper's step index
         b = B[l]
         v = float(w @ b)
@@ -96,7 +125,7 @@ def td_lambda_is(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # no
         e *= decay[l]
         e += c_list[l] * b
         # (8) w_i <- w_i + alpha_i delta_i e_i
-        w += (alpha * d) * e
+        w += (alpha_l[l] * d) * e
         delta[l] = d
     return w, delta, c
 
@@ -149,3 +178,182 @@ def policy_gradient_is(scores: ArrayLike, r: ArrayLike, rho: ArrayLike, gamma_i:
     """
     g = pg_weights(r, importance_products(rho), gamma_i)
     return alpha * (g @ np.asarray(scores, dtype=np.float64))
+
+
+def step_sizes(alpha: float, B: ArrayLike, norm: str) -> np.ndarray:  # noqa: N803
+    """Step size of each step: ``alpha`` (``none``), or ``alpha / (b_l . b_l)`` (``features``).
+
+    Normalised LMS: with ``alpha / (b . b)`` a step ``w <- w + alpha delta b / (b . b)`` moves
+    ``V(x_l) = w . b_l`` by exactly ``alpha delta``, whether the features are a concentrated
+    belief (``b . b`` ~ 1) or spread RBFs (``b . b`` ~ 0.1): the place module's diffuse early
+    beliefs no longer learn 100x slower than its localized ones.
+
+    Parameters
+    ----------
+    alpha : float
+    B : array_like, shape (L, n)
+    norm : str
+        ``none`` or ``features``.
+
+    Returns
+    -------
+    np.ndarray, shape (L,)
+    """
+    B = np.asarray(B, dtype=np.float64)  # noqa: N806
+    if norm == 'none':
+        return np.full(B.shape[0], float(alpha))
+    if norm != 'features':
+        raise ValueError(f'unknown step_norm {norm!r}: choose from {", ".join(STEP_NORMS)}')
+    return alpha / np.maximum(np.einsum('ln,ln->l', B, B), MASS_MIN)
+
+
+def td_retrace(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # noqa: N803
+               gamma_i: float, lambda_: float, alpha: ArrayLike, rho_bar: float = 1.0
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """TD(lambda) with per-decision truncated importance weights, online (beyond the paper).
+
+    Retrace(lambda) (Munos et al. 2016) for a state value, in the form of V-trace (Espeholt
+    et al. 2018)::
+
+        delta <- r_l + gamma_i V(x_{l+1}) - V(x_l)                 V(x_L) = 0
+        e     <- gamma_i lambda min(rho_bar, rho_{l-1}) e + b(x_l)  e = 0 at the start
+        w     <- w + alpha_l min(rho_bar, rho_l) delta e
+
+    Offline (fixed w) the summed update is ``sum_l (v_l - V(x_l)) b(x_l)`` with the V-trace
+    target ``v_l`` (:func:`vtrace_targets`, ``c_bar = lambda rho_bar``). Unlike (8), no product
+    of ratios multiplies the reward: a step is weighted by its own ratio, and the trace is cut
+    where the target would not have taken the action. With ``rho = 1`` everywhere it is plain
+    TD(lambda), as (8).
+
+    Parameters
+    ----------
+    w : array_like, shape (n,)
+    B : array_like, shape (L, n)
+    r, rho : array_like, shape (L,)
+    gamma_i, lambda_ : float
+    alpha : float or array_like, shape (L,)
+        Step size (per step: :func:`step_sizes`).
+    rho_bar : float
+        Truncation level of the ratios (1 in Retrace and V-trace).
+
+    Returns
+    -------
+    w : np.ndarray, shape (n,)
+    delta : np.ndarray, shape (L,)
+        TD errors.
+    weight : np.ndarray, shape (L,)
+        ``min(rho_bar, rho_l)``, the importance weight of each step's TD error.
+    """
+    w = np.array(w, dtype=np.float64)
+    B = np.asarray(B, dtype=np.float64)  # noqa: N806
+    n_steps = B.shape[0]
+    # Retrace / V-trace: rho_l and c_l = lambda min(c_bar, rho_l) truncated per step
+    weight = np.minimum(np.asarray(rho, dtype=np.float64), rho_bar)
+    alpha_l = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_steps,)).tolist()
+    r_list, wt = np.asarray(r, dtype=np.float64).tolist(), weight.tolist()
+    e = np.zeros_like(w)
+    delta = np.empty(n_steps)
+    for l in range(n_steps):  # noqa: E741 - the paper's step index
+        b = B[l]
+        v_next = float(w @ B[l + 1]) if l + 1 < n_steps else 0.0
+        d = r_list[l] + gamma_i * v_next - float(w @ b)
+        if l:
+            e *= gamma_i * lambda_ * wt[l - 1]     # trace cut by the previous step's ratio
+        e += b
+        w += (alpha_l[l] * wt[l] * d) * e
+        delta[l] = d
+    return w, delta, weight
+
+
+def vtrace_targets(v: ArrayLike, r: ArrayLike, rho: ArrayLike, gamma_i: float,
+                   lambda_: float, rho_bar: float = 1.0) -> np.ndarray:
+    """V-trace targets (Espeholt et al. 2018, eq. 1) of one episode, backwards::
+
+        v_l = V(x_l) + min(rho_bar, rho_l) delta_l + gamma_i c_l (v_{l+1} - V(x_{l+1}))
+        delta_l = r_l + gamma_i V(x_{l+1}) - V(x_l),   c_l = lambda min(rho_bar, rho_l)
+
+    with ``V(x_L) = v_L = 0`` (the episode ended).
+
+    Parameters
+    ----------
+    v : array_like, shape (L,)
+        ``V(x_l)`` at the current weights.
+    r, rho : array_like, shape (L,)
+    gamma_i, lambda_, rho_bar : float
+
+    Returns
+    -------
+    np.ndarray, shape (L + 1,)
+        ``v_0 .. v_{L-1}`` and ``v_L = 0``.
+    """
+    v = np.append(np.asarray(v, dtype=np.float64), 0.0)
+    r = np.asarray(r, dtype=np.float64)
+    wt = np.minimum(np.asarray(rho, dtype=np.float64), rho_bar)
+    n_steps = len(r)
+    target = np.zeros(n_steps + 1)
+    for l in range(n_steps - 1, -1, -1):  # noqa: E741
+        delta = r[l] + gamma_i * v[l + 1] - v[l]
+        target[l] = v[l] + wt[l] * delta + gamma_i * lambda_ * wt[l] * (target[l + 1]
+                                                                         - v[l + 1])
+    return target
+
+
+def offpac_weights(v: ArrayLike, r: ArrayLike, rho: ArrayLike, gamma_i: float,
+                   lambda_: float, rho_bar: float = 1.0) -> np.ndarray:
+    """Weight of each step's score in the off-policy actor-critic (beyond the paper).
+
+    ``g_l = min(rho_bar, rho_l) (r_l + gamma_i v_{l+1} - V(x_l))``: the per-step truncated
+    ratio (V-trace's actor, Espeholt et al. 2018) times the advantage against the module's own
+    value as the baseline (Off-PAC, Degris et al. 2012), ``v`` the V-trace targets
+    (:func:`vtrace_targets`). Replaces (9)'s ``sum_{l>=k} gamma^l r_l c_l``: no product of
+    ratios, no return without a baseline.
+
+    Parameters
+    ----------
+    v : array_like, shape (L,)
+        ``V(x_l)`` before the update.
+    r, rho : array_like, shape (L,)
+    gamma_i, lambda_, rho_bar : float
+
+    Returns
+    -------
+    np.ndarray, shape (L,)
+    """
+    v = np.asarray(v, dtype=np.float64)
+    target = vtrace_targets(v, r, rho, gamma_i, lambda_, rho_bar)
+    wt = np.minimum(np.asarray(rho, dtype=np.float64), rho_bar)
+    # Off-PAC / V-trace actor: rho_l (r_l + gamma v_{l+1} - V(x_l)) d ln pi(x_l, u_l)
+    return wt * (np.asarray(r, dtype=np.float64) + gamma_i * target[1:] - v)
+
+
+def discounted_returns(r: ArrayLike, gamma_i: float) -> np.ndarray:
+    """``G_l = sum_{k >= l} gamma_i^(k - l) r_k`` of one episode (``G_L = 0``), shape (L,)."""
+    r = np.asarray(r, dtype=np.float64)
+    g = np.empty(len(r))
+    acc = 0.0
+    for l in range(len(r) - 1, -1, -1):  # noqa: E741
+        acc = r[l] + gamma_i * acc
+        g[l] = acc
+    return g
+
+
+def imitation_weights(v: ArrayLike, r: ArrayLike, gamma_i: float, kappa: float) -> np.ndarray:
+    """Weight of each step's score in the imitation term (module docstring, beyond the paper).
+
+    ``kappa max(0, G_l - V(x_l))``: behaviour cloning of the executed action ``u_l`` (the score
+    ``d ln pi(x_l, u_l)``, CRAIL, Uchibe 2018) where its return beat the module's own value
+    (self-imitation learning, Oh et al. 2018), whoever acted.
+
+    Parameters
+    ----------
+    v : array_like, shape (L,)
+        ``V(x_l)`` before the update.
+    r : array_like, shape (L,)
+    gamma_i, kappa : float
+
+    Returns
+    -------
+    np.ndarray, shape (L,)
+    """
+    # self-imitation: kappa max(0, G_l - V(x_l))
+    return kappa * np.maximum(discounted_returns(r, gamma_i) - np.asarray(v, np.float64), 0.0)
