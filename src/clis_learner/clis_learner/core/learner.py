@@ -144,7 +144,12 @@ class Learner:
         if not memory.ended:
             raise RuntimeError('learn() needs an ended episode: call memory.end() first')
         replays = {m.name: self.replay(m, memory) for m in self.modules}    # before any update
-        return {m.name: self._learn_module(m, replays[m.name], update) for m in self.modules}
+        # Diverging weights (the paper preset's TD(lambda) with (7): docs/results.md) overflow
+        # to inf/NaN: that is detected and reported per module ('diverged', the update is then
+        # not applied), so numpy's warnings would only flood a long run's output
+        with np.errstate(over='ignore', invalid='ignore'):
+            return {m.name: self._learn_module(m, replays[m.name], update)
+                    for m in self.modules}
 
     # ------------------------------------------------------------------ step 1-3
 
