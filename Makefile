@@ -89,7 +89,7 @@ reproduce: setup
 # Issue 9: the improved preset (Innate is the paper's: its policy is fixed, its runs are the
 # same) and the ablation, each change of the preset alone on the same seeds; about 1 h on 2 cores.
 reproduce-improved: setup
-	@$(ENV) && clis experiment --preset improved --ablation --conditions view,place,sync,async \
+	@$(ENV) && clis experiment --preset improved --ablation --conditions innate,view,place,sync,async \
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --out results/improved --resume
 
 # The graph (clis run, sim time, lockstep) against the headless runner: the same conditions,
