@@ -86,8 +86,8 @@ reproduce: setup
 	@$(ENV) && clis experiment --conditions $(VARIANTS) \
 	  --episodes $(REPRO_EPISODES) --seeds 5 --out $(REPRO_OUT)-variants --resume
 
-# Issue 9: the improved preset (Innate is the paper's: its policy is fixed, its runs are the
-# same) and the ablation, each change of the preset alone on the same seeds; about 1 h on 2 cores.
+# Issue 9: the improved preset and the ablation, each change of the preset alone on the same
+# seeds (docs/results.md); several hours on 2 cores (~10 CPU-min per Async run with evaluation).
 reproduce-improved: setup
 	@$(ENV) && clis experiment --preset improved --ablation --conditions innate,view,place,sync,async \
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --out results/improved --resume
