@@ -87,7 +87,7 @@ reproduce: setup
 	  --episodes $(REPRO_EPISODES) --seeds 5 --out $(REPRO_OUT)-variants --resume
 
 # Issue 9: the improved preset and the ablation, each change of the preset alone on the same
-# seeds (docs/results.md); several hours on 2 cores (~10 CPU-min per Async run with evaluation).
+# seeds (docs/results.md); about 1 h on 2 idle cores (110 runs, ~1 CPU-min each).
 reproduce-improved: setup
 	@$(ENV) && clis experiment --preset improved --ablation --conditions innate,view,place,sync,async \
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --out results/improved --resume
