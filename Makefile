@@ -86,10 +86,10 @@ reproduce: setup
 	@$(ENV) && clis experiment --conditions $(VARIANTS) \
 	  --episodes $(REPRO_EPISODES) --seeds 5 --out $(REPRO_OUT)-variants --resume
 
-# Issue 9: the improved preset (Innate is the paper's: its policy is fixed, its runs are the
-# same) and the ablation, each change of the preset alone on the same seeds; about 1 h on 2 cores.
+# Issue 9: the improved preset and the ablation, each change of the preset alone on the same
+# seeds (docs/results.md); about 1 h on 2 idle cores (110 runs, ~1 CPU-min each).
 reproduce-improved: setup
-	@$(ENV) && clis experiment --preset improved --ablation --conditions view,place,sync,async \
+	@$(ENV) && clis experiment --preset improved --ablation --conditions innate,view,place,sync,async \
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --out results/improved --resume
 
 # The graph (clis run, sim time, lockstep) against the headless runner: the same conditions,

@@ -53,55 +53,57 @@ def _save(fig, path: Path) -> None:
     plt.close(fig)
 
 
+def _curves(results, path: Path, curve, xlabel: str, ylabel: str, ymax: float,
+            title: str) -> None:
+    """One line per condition with its 95% band over seeds; ``curve(runs) -> (x, curves)``
+    with ``curves`` of shape (n_seeds, n_points)."""
+    labels = _labels(results)
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    for label in labels:
+        runs = _runs(results, label)
+        x, curves = curve(runs)
+        mean, half = band(curves)
+        line, = ax.plot(x, mean, label=f'{label} (n={len(runs)})')
+        ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.15)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0, ymax)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.2),
+              ncol=2 if len(labels) > 5 else len(labels))
+    ax.set_title(title)
+    _save(fig, path)
+
+
 def fig3a(results, path: Path) -> None:
     """Fig. 3a as the paper reads it (its Fig. 2 caption): successes out of the evaluation
     episodes from A-E (learning off) at every evaluation point, mean and 95% band over seeds.
     Runs without periodic evaluation: the learning-episode curve (:func:`fig3a_learning`)."""
-    labels = _labels(results)
-    if not all(_runs(results, lb)[0].eval_curve for lb in labels):
+    if not all(_runs(results, lb)[0].eval_curve for lb in _labels(results)):
         fig3a_learning(results, path)
         return
-    fig, ax = plt.subplots(figsize=(8, 4.2))
-    n_eval = 50
-    for label in labels:
-        runs = _runs(results, label)
+
+    def curve(runs):
         n_points = min(len(r.eval_curve) for r in runs)
-        curves = np.array([r.eval_success_curve()[:n_points] for r in runs], float)
-        n_eval = int(runs[0].eval_curve[0]['n'])
-        x = np.array(runs[0].eval_points()[:n_points])
-        mean, half = band(curves)
-        line, = ax.plot(x, mean, label=f'{label} (n={len(runs)})')
-        ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.15)
-    ax.set_xlabel('learning episodes')
-    ax.set_ylabel(f'successes in {n_eval} evaluation episodes (A-E)')
-    ax.set_ylim(0, n_eval)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.2),
-              ncol=2 if len(labels) > 5 else len(labels))
-    ax.set_title('Fig. 3a: evaluation from A-E, learning off (mean, 95% t-band over seeds)')
-    _save(fig, path)
+        return (np.array(runs[0].eval_points()[:n_points]),
+                np.array([r.eval_success_curve()[:n_points] for r in runs], float))
+
+    n_eval = int(results[0].eval_curve[0]['n'])
+    _curves(results, path, curve, 'learning episodes',
+            f'successes in {n_eval} evaluation episodes (A-E)', n_eval,
+            'Fig. 3a: evaluation from A-E, learning off (mean, 95% t-band over seeds)')
 
 
 def fig3a_learning(results, path: Path) -> None:
     """Successes per block of learning episodes, mean and 95% band over seeds."""
-    labels = _labels(results)
-    fig, ax = plt.subplots(figsize=(8, 4.2))
-    for label in labels:
-        runs = _runs(results, label)
+    block = results[0].block
+
+    def curve(runs):
         curves = np.array([r.success_curve() for r in runs], float)
-        block = runs[0].block
-        x = (np.arange(curves.shape[1]) + 1) * block
-        mean, half = band(curves)
-        line, = ax.plot(x, mean, label=f'{label} (n={len(runs)})')
-        ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.15)
-    ax.set_xlabel('episodes')
-    ax.set_ylabel(f'successes per {block} episodes')
-    ax.set_ylim(0, block)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.2),
-              ncol=2 if len(labels) > 5 else len(labels))
-    ax.set_title('successes of the learning episodes (mean, 95% t-band over seeds)')
-    _save(fig, path)
+        return (np.arange(curves.shape[1]) + 1) * block, curves
+
+    _curves(results, path, curve, 'episodes', f'successes per {block} episodes', block,
+            'successes of the learning episodes (mean, 95% t-band over seeds)')
 
 
 def fig3bc(results, path: Path) -> None:
