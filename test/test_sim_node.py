@@ -47,7 +47,11 @@ def pose_of(odom: Odometry) -> np.ndarray:
 
 def test_sim_node_publishes_interface_at_declared_rates_and_obeys_cmd_vel(probe):
     proc = start_node('cr_sim.sim_node', '-p', f'node.speed_factor:={SPEED}',
-                      '-p', 'node.start:=A', '-p', 'node.auto_reset:=false')
+                      '-p', 'node.start:=A', '-p', 'node.auto_reset:=false',
+                      # the sim's clock runs from its start, before the probe has discovered it:
+                      # a 60 s episode (6 s wall at x10) could time out during the drives below,
+                      # and then the sim (auto_reset off) holds and publishes no odom
+                      '-p', 'episode.time_limit:=600.0')
     try:
         probe.listen(Clock, '/clock')
         probe.listen(MarkerArray, 'arena', latched=True)
