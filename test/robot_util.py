@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import random
 import socket
 import subprocess
 import sys
@@ -12,9 +13,21 @@ EMULATOR = 'cr_bridge.emulator'
 
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(('127.0.0.1', 0))
-        return s.getsockname()[1]
+    """A free UDP port below the kernel's ephemeral range (32768-60999), drawn at random.
+
+    An ephemeral port (bind to 0) can be handed to another socket (the bridge's own) between
+    this check and the emulator's bind: 'Address already in use' was seen once. Fast DDS
+    binds a few ports per domain in 7400-32650 and skips to others when one is taken."""
+    rng = random.Random()
+    for _ in range(200):
+        port = rng.randrange(20000, 30000)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind(('127.0.0.1', port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError('no free UDP port in 20000-29999')
 
 
 def start_emulator(port: int, speed: float, *extra: str) -> subprocess.Popen:
