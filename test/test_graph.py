@@ -25,6 +25,7 @@ from cr_sim.conversions import from_time
 from cr_sim.core.params import config_dir, ros_parameters
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import OccupancyGrid
 import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile
@@ -85,6 +86,7 @@ def listen_all(probe: Probe) -> None:
     for topic in ('arbiter/selection', 'arbiter/action', 'wheels'):
         probe.listen(JointState, topic, depth=1000)
     probe.listen(TwistStamped, 'cmd_vel', depth=1000)
+    probe.listen(OccupancyGrid, 'place/belief', depth=1000)
     probe.listen(DiagnosticArray, 'episode', latched=True)
     probe.listen(DiagnosticArray, 'learner/progress', latched=True)
 
@@ -191,6 +193,22 @@ def test_modules_propose_at_their_periods_under_sim_time(async_run):
             gaps = np.diff(inside)
             bad = np.abs(gaps - tau) > 0.1 * tau
             assert not bad.any(), (name, t0, t_end, inside[1:][bad], gaps[bad])
+
+
+def test_place_belief_is_an_occupancy_grid_at_its_decisions(async_run):
+    """The place module publishes its belief (marginal over heading) for RViz/Foxglove at each
+    of its decisions, stamped with the readings it used; built only for a subscriber (this
+    probe is one)."""
+    probe = async_run['probe']
+    grids = probe.msgs['place/belief']
+    assert grids, 'no belief received'
+    decided = {round(stamp(m), 6) for m in probe.msgs['place/proposal']}
+    assert {round(stamp(g), 6) for g in grids} <= decided
+    for g in grids[:20]:
+        data = np.array(g.data, dtype=np.int16)
+        assert data.size == g.info.width * g.info.height > 0
+        assert g.info.resolution > 0 and g.header.frame_id
+        assert data.min() >= 0 and data.max() == 100             # scaled to the likeliest cell
 
 
 def on_grid(t: float, t0: float, tau: float) -> bool:
