@@ -29,7 +29,7 @@ from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param,
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
 from cr_sim.interface import open_robot_interface
-from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down
+from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 
@@ -275,6 +275,7 @@ def main(args: list[str] | None = None) -> None:
         raise SystemExit(2) from None
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+    settle_heap()
     profiler = start_profile()
     try:
         run(node, executor)
