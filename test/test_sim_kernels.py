@@ -4,7 +4,9 @@ reference numpy/Python code they replace: bit for bit where the docstrings say s
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
+from clis_modules.core.decider import Decider
 from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.localization import (
     MarkovLocalizer,
@@ -17,7 +19,7 @@ from cr_sim.core import kernels
 from cr_sim.core.arena import load_arena
 from cr_sim.core.geometry import box_planes, disc_gap, slab_planes, wrap_angle, wrap_angles
 from cr_sim.core.robot import clamp_wheels, integrate_arc, twist_to_wheels, wheels_to_twist
-from cr_sim.core.sim import load_sim_params
+from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -76,6 +78,43 @@ def test_move_kernel_is_the_reference_motion_bit_for_bit(world):
         assert got == want
         blocked += want[5]
     assert blocked > 100                     # the contact search was exercised
+
+
+def test_hold_is_repeated_steps_bit_for_bit(world):
+    """Simulator.hold(u, n) = step(u) until n steps, a reward or the end: same poses, wheels,
+    flags and rewards; odometry composed over its wheels = per step."""
+    params, arena = world
+    held = Simulator(arena, params, np.random.default_rng(1))
+    stepped = Simulator(arena, params, np.random.default_rng(1))
+    rng = np.random.default_rng(6)
+    # deciders of a module that localizes (only its odometry is used here)
+    d_held, d_step = (Decider(SimpleNamespace(localizer=object(), reset=lambda: None), rng,
+                              params.robot.wheel_base) for _ in range(2))
+    dt = params.episode.dt
+    ends = 0
+    for _ in range(6):
+        held.reset('random')
+        stepped.reset('random')
+        while not held.done:
+            u = rng.uniform(-0.6, 0.6, 2)
+            n = int(rng.integers(1, 40))
+            res, wheels = held.hold(u, n)
+            d_held.on_wheel_steps(wheels, dt)
+            assert res.steps == len(wheels) and 1 <= res.steps <= n
+            for k in range(res.steps):
+                ref = stepped.step(u)
+                np.testing.assert_array_equal(wheels[k], stepped.wheels)
+                d_step.on_wheels(*stepped.wheel_speeds, dt)
+                if k < res.steps - 1:
+                    assert ref.reward == 0.0 and not ref.done
+            assert (ref.t, ref.reward, ref.collision, ref.reached, ref.timeout) == (
+                res.t, res.reward, res.collision, res.reached, res.timeout)
+            assert res.steps == n or res.reward != 0.0 or res.done
+            np.testing.assert_array_equal(held.pose, stepped.pose)
+            assert held.wheel_speeds == stepped.wheel_speeds and held.touching == stepped.touching
+            assert d_held._odo == d_step._odo
+            ends += res.reward != 0.0
+    assert ends > 0
 
 
 def test_scan_kernel_is_the_reference_sensor_model_bit_for_bit(world):

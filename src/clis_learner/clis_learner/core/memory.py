@@ -185,8 +185,9 @@ class StreamBuffer:
         do not modify it afterwards). False (ignored): a decision at ``t`` is there already (a
         module sends its last proposal again while the clock stands still)."""
         items = self._dec[module]
-        if any(abs(tk - t) <= TIME_TOL for tk, _ in items[-8:]):
-            return False
+        for tk, _ in items[-8:]:
+            if abs(tk - t) <= TIME_TOL:
+                return False
         _insert(items, (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
         return True
 
