@@ -9,10 +9,15 @@ from types import SimpleNamespace
 from clis_modules.core.decider import Decider
 from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.localization import (
+    _EXP_LOG_LIK_MIN,
+    _LOG_LIK_MIN,
     MarkovLocalizer,
     _blur,
     _gaussian_weights,
     _log_likelihood,
+    _row_max,
+    _sub_pose_sums,
+    _unclipped,
 )
 from clis_modules.core.modules import arena_map, load_module_params
 from cr_sim.core import kernels
@@ -235,6 +240,34 @@ def test_localization_likelihood_is_the_von_mises_sum(localizer):
     want = loc.kappa * np.cos(zs[None, None, None, :, None, None] - mu)
     want = (want * seen[None, None, None, :, None, None]).sum(axis=3)
     np.testing.assert_allclose(got, want.reshape(got.shape), rtol=0, atol=1e-9)
+
+
+def test_localization_cell_likelihood_is_the_reference_bit_for_bit(localizer):
+    """Pr(s | cell): exp of the clipped log-likelihoods summed over the sub-poses, computed
+    only where a cell has an unclipped sub-pose, = the whole array's numpy reference."""
+    loc = localizer
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        z = rng.uniform(-math.pi, math.pi, len(loc.landmarks_xy))
+        z[rng.random(len(z)) < 0.3] = np.nan
+        seen = np.isfinite(z)
+        if not seen.any():
+            continue
+        zs = np.where(seen, z, 0.0)
+        rows = _log_likelihood(np.cos(zs), np.sin(zs), seen, loc.kappa, loc._cos_phi,
+                               loc._sin_phi, loc._cos_th, loc._sin_th).reshape(loc._n_sub, -1)
+        v = np.maximum(rows - rows.max(), _LOG_LIK_MIN)
+        e = np.full(v.shape, _EXP_LOG_LIK_MIN)
+        e[v > _LOG_LIK_MIN] = np.exp(v[v > _LOG_LIK_MIN])
+        want = e[0].copy()
+        for row in e[1:]:
+            want += row
+        cell_max = _row_max(rows)
+        np.testing.assert_array_equal(cell_max, rows.max(axis=0))
+        best = float(cell_max.max())
+        cells, vals = _unclipped(rows, cell_max, best, _LOG_LIK_MIN)
+        got = _sub_pose_sums(rows, cells, best, _LOG_LIK_MIN, _EXP_LOG_LIK_MIN, np.exp(vals))
+        np.testing.assert_array_equal(got, want)
 
 
 def test_rbf_single_input_is_the_batch_row_bit_for_bit():

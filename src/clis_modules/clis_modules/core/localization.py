@@ -289,13 +289,16 @@ class MarkovLocalizer:
         loglik = _log_likelihood(np.cos(zs), np.sin(zs), seen, self.kappa, self._cos_phi,
                                  self._sin_phi, self._cos_th, self._sin_th)
         # minus the best, clipped at _LOG_LIK_MIN (no denormals), then exp: the clipped entries
-        # (about 97%) all get exp(_LOG_LIK_MIN), the others numpy's exp
-        flat = loglik.reshape(-1)
-        idx, vals = _clip_compact(flat, loglik.max(), _LOG_LIK_MIN, _EXP_LOG_LIK_MIN)
-        flat[idx] = np.exp(vals)
+        # (about 97%) all get exp(_LOG_LIK_MIN), the others numpy's exp; a cell whose best
+        # sub-pose is clipped has them all clipped (found from the per-cell maxima)
+        rows = loglik.reshape(self._n_sub, -1)
+        cell_max = _row_max(rows)
+        best = float(cell_max.max())
+        cells, vals = _unclipped(rows, cell_max, best, _LOG_LIK_MIN)
         # Pr(s | cell) = mean over its sub-poses (the pose is anywhere inside the cell); the
         # constant 1/S cancels in the normalisation
-        lik = _sum_rows(loglik.reshape(self._n_sub, -1)).reshape(self.shape)
+        lik = _sub_pose_sums(rows, cells, best, _LOG_LIK_MIN, _EXP_LOG_LIK_MIN,
+                             np.exp(vals)).reshape(self.shape)
         # b(x) <- eta Pr(s | x) b(x)
         p = lik * self._p
         total = p.sum()
@@ -519,29 +522,55 @@ def _log_likelihood(cos_z: np.ndarray, sin_z: np.ndarray, seen: np.ndarray, kapp
 
 
 @njit
-def _clip_compact(a: np.ndarray, best: float, low: float, exp_low: float
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """``v = max(a - best, low)`` of every entry of ``a`` (N,); ``a`` is overwritten with
-    ``exp_low`` and the entries with ``v > low`` are returned as (indices, v) for their exp."""
-    n = a.shape[0]
-    idx = np.empty(n, dtype=np.int64)
-    vals = np.empty(n)
-    m = 0
-    for i in range(n):
-        v = max(a[i] - best, low)
-        a[i] = exp_low
-        if v > low:
-            idx[m] = i
-            vals[m] = v
-            m += 1
-    return idx[:m], vals[:m]
-
-
-@njit
-def _sum_rows(a: np.ndarray) -> np.ndarray:
-    """``a.sum(axis=0)`` of ``a`` (S, N): the rows added in order."""
+def _row_max(a: np.ndarray) -> np.ndarray:
+    """``a.max(axis=0)`` of ``a`` (S, N) without NaN: the best sub-pose of each cell."""
     out = a[0].copy()
     for s in range(1, a.shape[0]):
         for i in range(a.shape[1]):
-            out[i] += a[s, i]
+            out[i] = max(out[i], a[s, i])
+    return out
+
+
+@njit
+def _unclipped(a: np.ndarray, cell_max: np.ndarray, best: float, low: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The cells (columns of ``a`` (S, N)) with an entry ``v = a - best > low``
+    (``cell_max`` (N,) their maxima), and those entries ``v``, cell by cell, rows in order."""
+    n_sub, n = a.shape
+    cells = np.empty(n, dtype=np.int64)
+    vals = np.empty(n * n_sub)
+    n_cells = m = 0
+    for i in range(n):
+        if max(cell_max[i] - best, low) > low:
+            cells[n_cells] = i
+            n_cells += 1
+            for s in range(n_sub):
+                v = max(a[s, i] - best, low)
+                if v > low:
+                    vals[m] = v
+                    m += 1
+    return cells[:n_cells], vals[:m]
+
+
+@njit
+def _sub_pose_sums(a: np.ndarray, cells: np.ndarray, best: float, low: float, exp_low: float,
+                   exps: np.ndarray) -> np.ndarray:
+    """Per column of ``a`` (S, N), ``sum_s exp(max(a[s] - best, low))`` added row after row
+    (as ``a.sum(axis=0)`` adds rows), with ``exp_low`` for the clipped entries and ``exps``
+    for the others, in :func:`_unclipped`'s order (``cells``: the columns that have any)."""
+    n_sub, n = a.shape
+    const = exp_low                         # a column with every entry clipped
+    for _ in range(1, n_sub):
+        const += exp_low
+    out = np.full(n, const)
+    m = 0
+    for i in cells:
+        acc = 0.0
+        for s in range(n_sub):
+            e = exp_low
+            if max(a[s, i] - best, low) > low:
+                e = exps[m]
+                m += 1
+            acc = e if s == 0 else acc + e
+        out[i] = acc
     return out
