@@ -162,13 +162,15 @@ class Decider:
             loc.update(percept.landmark_bearings)
         self._first = False
         b = m.features(percept.dest_bearing, percept.d_o, percept.landmark_bearings)
-        mean = m.policy.mean(b)
-        sigma = m.policy.sigma_at(b)
+        pol = m.policy
+        # (10) mean v_max W_i b (GaussianPolicy.mean; b is a fresh float64 array already)
+        mean = pol.v_max * (pol.W @ b)
+        sigma = pol.sigma_at(b)
         # (10) u ~ N(v_max W_i b, sigma_i^2 I)
         u = mean + sigma * self.rng.standard_normal(ACTION_DIM)
-        # (1)(2) V_i(x) = w_i^T b_i(x)
-        value = m.value(b)
-        return Proposal(m.name, float(percept.t), b, u, mean, float(sigma), float(value),
+        # (1)(2) V_i(x) = w_i^T b_i(x) (LinearValue.__call__)
+        value = float(m.value_fn.w @ b)
+        return Proposal(m.name, float(percept.t), b, u, mean, float(sigma), value,
                         self.version)
 
     def set_parameters(self, w: ArrayLike, W: ArrayLike, sigma: float,  # noqa: N803
