@@ -18,8 +18,8 @@ decoded ROS messages drive it alike.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
+from typing import NamedTuple
 
 from cr_sim.core.kernels import odometry, odometry_step
 import numpy as np
@@ -31,9 +31,10 @@ from clis_modules.core.policy import ACTION_DIM
 __all__ = ['Percept', 'Proposal', 'Decider']
 
 
-@dataclass(frozen=True)
-class Percept:
-    """What a module reads of the robot at one instant.
+class Percept(NamedTuple):
+    """What a module reads of the robot at one instant (immutable; a named tuple, not a frozen
+    dataclass: one is made at every decision instant, and a frozen dataclass's ``__init__``
+    costs several times more).
 
     Attributes
     ----------
@@ -58,9 +59,9 @@ class Percept:
         return cls(t, obs.dest_bearing, obs.d_o, obs.landmark_bearings)
 
 
-@dataclass(frozen=True)
-class Proposal:
-    """A module's decision at time ``t`` (what a module node publishes).
+class Proposal(NamedTuple):
+    """A module's decision at time ``t`` (what a module node publishes; immutable, a named
+    tuple as :class:`Percept`: one per decision).
 
     Attributes
     ----------
