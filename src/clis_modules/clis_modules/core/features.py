@@ -96,7 +96,9 @@ class RbfGrid:
         self._flat_centers = np.concatenate(self.centers)
         self._sizes = np.array([len(c) for c in self.centers], dtype=np.int64)
         self._periodic = np.array(self.periodic, dtype=np.bool_)
-        self._q = np.empty(len(self._flat_centers))     # scratch of __call__'s exponents
+        # scratch of __call__'s exponents: one call at a time per grid (each scheduler of the
+        # project decides a module from one thread)
+        self._q = np.empty(len(self._flat_centers))
 
     @property
     def dim(self) -> int:
