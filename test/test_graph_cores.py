@@ -37,8 +37,9 @@ def test_decider_proposes_from_the_policy_and_the_value(params):
     expected_u = view.sample(b, np.random.default_rng(7))     # same two normals
     assert p.module == 'view' and p.t == 2.5 and p.version == 0
     assert np.array_equal(p.b, b) and np.array_equal(p.u, expected_u)
-    assert p.mean == pytest.approx(view.policy_mean(b)) and p.sigma == view.sigma
-    assert p.value == pytest.approx(float(view.w @ b))
+    # the policy's and the value's own methods, bit for bit (decide inlines them)
+    assert np.array_equal(p.mean, view.policy_mean(b)) and p.sigma == view.sigma
+    assert p.value == view.value(b)
 
 
 def test_decider_place_odometry_reaches_the_motion_update(params):
@@ -148,6 +149,47 @@ def test_selector_decision_mode_frequencies_follow_eq_3():
         sel.latest[2] = proposal('place', k * 0.01, values['place'])
     p = selection_probs(list(values.values()), gammas, 50.0)
     assert counts / counts.sum() == pytest.approx(p, abs=0.025)
+
+
+def test_selector_episode_mode_keeps_the_commands_of_the_full_freshness_check():
+    """on_proposals' shortcut (episode mode, the acting module still fresh: only its
+    freshness is checked) gives the commands of the full check of every module."""
+
+    class FullCheck(Selector):
+        def _fresh_one(self, i, now):                     # the shortcut never taken
+            return False if self._full else super()._fresh_one(i, now)
+
+        def fresh(self, now):
+            self._full = False
+            ok = super().fresh(now)
+            self._full = True
+            return ok
+
+    rng = np.random.default_rng(5)
+    a, b = selector(beta=2.0, seed=1), FullCheck(
+        ['innate', 'view', 'place'], [0.9, 0.8, 0.7], [0.6, 0.3, 0.125], [0.25, 0.5, 1.2],
+        ArbiterParams(selection='episode', stale_periods=1.5, start_timeout=0.5, rule='paper',
+                      scale_min=0.1), 2.0, np.random.default_rng(1))
+    b._full = True
+    n_commands = 0
+    for episode in range(30):
+        t0 = 10.0 * episode
+        a.begin_episode(t0)
+        b.begin_episode(t0)
+        for k in range(120):
+            now = t0 + 0.05 * k
+            due = [m for m, n in (('innate', 5), ('view', 10), ('place', 24))
+                   if k % n == 0 and rng.random() > 0.1]     # some proposals go missing
+            props = [proposal(m, now, float(rng.normal()), tuple(rng.normal(size=2)))
+                     for m in due]
+            ca, cb = a.on_proposals(props, now), b.on_proposals(props, now)
+            if ca is None or cb is None:
+                assert ca is cb
+                continue
+            n_commands += 1
+            assert (ca.t, ca.module, ca.drawn) == (cb.t, cb.module, cb.drawn)
+            assert np.array_equal(ca.u_exec, cb.u_exec)
+    assert n_commands > 300
 
 
 # ------------------------------------------------------------------------------ StreamBuffer
@@ -349,3 +391,33 @@ def test_lockstep_holds_only_at_decision_instants_when_given_the_periods():
     assert every.holding
     every.on_command(stamp=100.0)                             # an older answer: still held
     assert every.holding
+
+
+def test_stream_buffer_cut_is_the_memory_recorded_one_by_one():
+    """cut() hands the held decisions to the memory (no copy, no per-record check but the
+    time order): the same memory as recording each; an ended memory stacks each module's
+    decisions and the actions once."""
+    rng = np.random.default_rng(2)
+    buf = StreamBuffer(['innate', 'view'])
+    ref = EpisodeMemory(['innate', 'view'])
+    for k in range(40):
+        for name, n in (('innate', 1), ('view', 2)):
+            if k % n == 0:
+                b = rng.normal(size=3)
+                assert buf.add_decision(name, 0.25 * k, b)
+                assert not buf.add_decision(name, 0.25 * k, b)     # a copy counts once
+                if k < 36:
+                    ref.record_decision(name, 0.25 * k, b)
+        buf.add_action(0.25 * k, rng.normal(size=2), 'view')
+        if k < 36:
+            ref.record_action(0.25 * k, buf._act[-1][1], 'view')
+    ref.end(9.0, False)
+    mem = buf.cut(0.0, 9.0, reached=False)
+    for name in ('innate', 'view'):
+        t, B = mem.decisions(name)  # noqa: N806
+        t_ref, B_ref = ref.decisions(name)  # noqa: N806
+        assert np.array_equal(t, t_ref) and np.array_equal(B, B_ref)
+        assert mem.decisions(name)[1] is B                    # stacked once
+    assert all(np.array_equal(x, y) for x, y in zip(mem.actions(), ref.actions()))
+    assert mem.actions()[1] is mem.actions()[1]
+    assert buf.last_decision('innate') == 9.75 and buf.last_decision('view') == 9.5  # kept

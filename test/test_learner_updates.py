@@ -11,7 +11,12 @@ from clis_learner.core.corrections import (
     make_correction,
 )
 from clis_learner.core.memory import EpisodeMemory
-from clis_learner.core.resample import latest_index, resample_actions, sum_rewards
+from clis_learner.core.resample import (
+    ActionTrack,
+    latest_index,
+    resample_actions,
+    sum_rewards,
+)
 from clis_learner.core.updates import (
     C_MAX,
     importance_products,
@@ -231,3 +236,15 @@ def test_memory_records_and_validates():
     assert list(mem.rewards()[1]) == [-0.1] and mem.reached
     mem.clear()
     assert not mem.ended and mem.decisions('view')[1] is None
+
+
+@pytest.mark.parametrize('method', ['spline', 'zoh'])
+def test_action_track_shared_by_grids_is_resample_actions_bit_for_bit(method):
+    """One track (one spline fit) queried on every module's grid = resample_actions per grid."""
+    rng = np.random.default_rng(4)
+    t_knots = np.cumsum(rng.uniform(0.2, 1.3, 60))
+    u_knots = rng.normal(size=(60, 2))
+    track = ActionTrack(t_knots, u_knots, method)
+    for period in (0.25, 0.5, 1.2, 0.35):
+        grid = np.arange(0.0, t_knots[-1] + 2.0, period)
+        assert np.array_equal(track.at(grid), resample_actions(t_knots, u_knots, grid, method))

@@ -67,7 +67,7 @@ import numpy as np
 from clis_learner.core.config import ClisParams
 from clis_learner.core.corrections import make_correction, mixture_density
 from clis_learner.core.memory import EpisodeMemory
-from clis_learner.core.resample import latest_index, resample_actions, sum_rewards
+from clis_learner.core.resample import ActionTrack, latest_index, sum_rewards
 from clis_learner.core.updates import (
     MASS_MIN,
     imitation_weights,
@@ -143,7 +143,10 @@ class Learner:
         """
         if not memory.ended:
             raise RuntimeError('learn() needs an ended episode: call memory.end() first')
-        replays = {m.name: self.replay(m, memory) for m in self.modules}    # before any update
+        t_a, u_a, _ = memory.actions()
+        track = ActionTrack(t_a, u_a, self.params.resample) if len(t_a) else None
+        # before any update
+        replays = {m.name: self.replay(m, memory, track) for m in self.modules}
         # Diverging weights (the paper preset's TD(lambda) with (7): docs/results.md) overflow
         # to inf/NaN: that is detected and reported per module ('diverged', the update is then
         # not applied), so numpy's warnings would only flood a long run's output
@@ -153,14 +156,19 @@ class Learner:
 
     # ------------------------------------------------------------------ step 1-3
 
-    def replay(self, m: ModuleCore, memory: EpisodeMemory) -> Replay | None:
+    def replay(self, m: ModuleCore, memory: EpisodeMemory,
+               track: ActionTrack | None = None) -> Replay | None:
         """Module ``m``'s view of the episode with the current parameters (``None`` if it never
-        decided before the end or nothing was executed)."""
+        decided before the end or nothing was executed). ``track``: the episode's executed
+        actions (:class:`ActionTrack` of ``memory.actions()``, shared by the modules' replays;
+        made here by default)."""
         t_i, B = memory.decisions(m.name)  # noqa: N806
         t_a, u_a, who_a = memory.actions()
         if B is None or len(t_a) == 0:
             return None
-        U = resample_actions(t_a, u_a, t_i, self.params.resample)  # noqa: N806
+        if track is None:
+            track = ActionTrack(t_a, u_a, self.params.resample)
+        U = track.at(t_i)  # noqa: N806
         beh = who_a[latest_index(t_a, t_i)]                 # behaviour i' at each t_l
         on = beh == memory.index(m.name)
         rho = np.ones(len(t_i))

@@ -60,6 +60,7 @@ class EpisodeMemory:
         self._act_who: list[int] = []
         self._rew_t: list[float] = []
         self._rew_r: list[float] = []
+        self._stacked: dict[str | None, tuple] = {}  # ended: decisions, actions (None)
         self.t_start = 0.0
         self.t_end: float | None = None
         self.reached = False
@@ -81,6 +82,17 @@ class EpisodeMemory:
             raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
         ts.append(float(t))
         self._dec_b[module].append(np.array(b, dtype=np.float64).reshape(-1))
+
+    def _take_decisions(self, module: str, items: list[tuple[float, np.ndarray]]) -> None:
+        """:meth:`record_decision` for each ``(t, b)`` of ``items`` (time-sorted, ``b`` 1-D
+        float64 arrays handed over, not copied: :meth:`StreamBuffer.cut` drops its own)."""
+        self._check_open()
+        ts, bs = self._dec_t[module], self._dec_b[module]
+        for t, b in items:
+            if ts and t <= ts[-1] + TIME_TOL:
+                raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
+            ts.append(t)
+            bs.append(b)
 
     def record_action(self, t: float, u: ArrayLike, behaviour: str) -> None:
         """From time ``t`` [s] the robot executes ``u`` (the proposed ``(v_left, v_right)``
@@ -111,6 +123,7 @@ class EpisodeMemory:
             raise ValueError(f'end time must be finite, got {t}')
         self.t_end = float(t)
         self.reached = bool(reached)
+        self._stacked = {}
 
     # ------------------------------------------------------------------ reading
 
@@ -130,21 +143,36 @@ class EpisodeMemory:
     def decisions(self, module: str) -> tuple[np.ndarray, np.ndarray | None]:
         """Decision times (L,) and features (L, n) of ``module`` before the end.
 
-        The features are ``None`` when the module never decided.
+        The features are ``None`` when the module never decided. Once the episode has ended
+        they are stacked once per module (the learner reads each module's several times), and
+        every call returns the same arrays: do not modify them.
         """
+        if self.t_end is not None and module in self._stacked:
+            return self._stacked[module]
         t = np.asarray(self._dec_t[module], dtype=np.float64)
         keep = t < self.t_end - TIME_TOL if self.t_end is not None else np.ones(len(t), bool)
         if not keep.any():
-            return t[:0], None
-        n_keep = int(np.count_nonzero(keep))     # times increase: a prefix is kept
-        return t[:n_keep], np.stack(self._dec_b[module][:n_keep])
+            out: tuple[np.ndarray, np.ndarray | None] = (t[:0], None)
+        else:
+            n_keep = int(np.count_nonzero(keep))     # times increase: a prefix is kept
+            out = (t[:n_keep], np.stack(self._dec_b[module][:n_keep]))
+        if self.t_end is not None:
+            self._stacked[module] = out
+        return out
 
     def actions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Action change points: times (K,), proposed actions (K, 2), behaviour index (K,)."""
+        """Action change points: times (K,), proposed actions (K, 2), behaviour index (K,)
+        (once the episode has ended: the same arrays at every call, do not modify them)."""
+        if self.t_end is not None and None in self._stacked:
+            return self._stacked[None]
         if not self._act_t:
-            return np.zeros(0), np.zeros((0, 2)), np.zeros(0, dtype=int)
-        return (np.asarray(self._act_t), np.stack(self._act_u),
-                np.asarray(self._act_who, dtype=int))
+            out = np.zeros(0), np.zeros((0, 2)), np.zeros(0, dtype=int)
+        else:
+            out = (np.asarray(self._act_t), np.stack(self._act_u),
+                   np.asarray(self._act_who, dtype=int))
+        if self.t_end is not None:
+            self._stacked[None] = out
+        return out
 
     def rewards(self) -> tuple[np.ndarray, np.ndarray]:
         """Reward times (R,) and values (R,)."""
@@ -186,10 +214,13 @@ class StreamBuffer:
         module sends its last proposal again while the clock stands still)."""
         items = self._dec[module]
         # sorted by time: nothing within the tolerance when the newest is older than that
-        if items and items[-1][0] >= t - TIME_TOL:
-            for tk, _ in items[-8:]:
-                if abs(tk - t) <= TIME_TOL:
-                    return False
+        if not items or items[-1][0] < t - TIME_TOL:
+            # the common case (a newer decision): appended, as _insert would
+            items.append((float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
+            return True
+        for tk, _ in items[-8:]:
+            if abs(tk - t) <= TIME_TOL:
+                return False
         _insert(items, (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
         return True
 
@@ -227,8 +258,7 @@ class StreamBuffer:
         mem.t_start = float(t0)
         lo, hi = t0 - TIME_TOL, t_end - TIME_TOL
         for name, items in self._dec.items():
-            for t, b in _take(items, lo, hi):
-                mem.record_decision(name, t, b)
+            mem._take_decisions(name, _take(items, lo, hi))
         for t, u, who in _take(self._act, lo, hi):
             mem.record_action(t, u, who)
         for t, r in _take(self._rew, t0 + TIME_TOL, t_end + TIME_TOL):

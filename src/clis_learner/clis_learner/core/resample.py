@@ -30,7 +30,7 @@ from scipy.interpolate import CubicSpline
 
 from clis_learner.core.memory import TIME_TOL
 
-__all__ = ['RESAMPLE_METHODS', 'latest_index', 'resample_actions', 'sum_rewards']
+__all__ = ['RESAMPLE_METHODS', 'ActionTrack', 'latest_index', 'resample_actions', 'sum_rewards']
 
 #: Resampling methods of :func:`resample_actions`.
 RESAMPLE_METHODS = ('spline', 'zoh')
@@ -71,21 +71,45 @@ def resample_actions(t_knots: ArrayLike, u_knots: ArrayLike, t_query: ArrayLike,
     -------
     np.ndarray, shape (L, d)
     """
-    tk = np.asarray(t_knots, dtype=np.float64)
-    uk = np.asarray(u_knots, dtype=np.float64).reshape(len(tk), -1)
-    tq = np.asarray(t_query, dtype=np.float64)
-    if method not in RESAMPLE_METHODS:
-        raise ValueError(f'unknown resampling method {method!r}: {RESAMPLE_METHODS}')
-    if len(tk) == 0:
-        raise ValueError('no action to resample')
-    idx = latest_index(tk, tq)
-    out = uk[idx].copy()                                   # zero-order hold
-    if method == 'spline' and len(tk) >= 2:
-        on_knot = np.abs(tq - tk[idx]) <= TIME_TOL
-        inside = (tq > tk[0]) & (tq < tk[-1]) & ~on_knot
-        if inside.any():
-            out[inside] = CubicSpline(tk, uk, axis=0)(tq[inside])
-    return out
+    return ActionTrack(t_knots, u_knots, method).at(t_query)
+
+
+class ActionTrack:
+    """The executed actions of one episode, resampled onto any grid (:func:`resample_actions`):
+    the spline through the change points is fitted once (on first use) for all the grids
+    (every module's) of the episode; each query point is evaluated on its own, so the values
+    are those of :func:`resample_actions` bit for bit.
+
+    Parameters
+    ----------
+    t_knots, u_knots, method
+        As for :func:`resample_actions`.
+    """
+
+    def __init__(self, t_knots: ArrayLike, u_knots: ArrayLike, method: str) -> None:
+        self.tk = np.asarray(t_knots, dtype=np.float64)
+        self.uk = np.asarray(u_knots, dtype=np.float64).reshape(len(self.tk), -1)
+        if method not in RESAMPLE_METHODS:
+            raise ValueError(f'unknown resampling method {method!r}: {RESAMPLE_METHODS}')
+        if len(self.tk) == 0:
+            raise ValueError('no action to resample')
+        self.method = method
+        self._spline: CubicSpline | None = None
+
+    def at(self, t_query: ArrayLike) -> np.ndarray:
+        """Actions at the query times ``t_query`` (L,) -> shape (L, d)."""
+        tk, uk = self.tk, self.uk
+        tq = np.asarray(t_query, dtype=np.float64)
+        idx = latest_index(tk, tq)
+        out = uk[idx].copy()                                   # zero-order hold
+        if self.method == 'spline' and len(tk) >= 2:
+            on_knot = np.abs(tq - tk[idx]) <= TIME_TOL
+            inside = (tq > tk[0]) & (tq < tk[-1]) & ~on_knot
+            if inside.any():
+                if self._spline is None:
+                    self._spline = CubicSpline(tk, uk, axis=0)
+                out[inside] = self._spline(tq[inside])
+        return out
 
 
 def sum_rewards(t_rewards: ArrayLike, rewards: ArrayLike, t_grid: ArrayLike) -> np.ndarray:

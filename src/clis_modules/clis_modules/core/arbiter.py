@@ -224,6 +224,7 @@ class Selector:
         self.gammas = np.asarray(gammas, dtype=np.float64)
         self.v_max = np.asarray(v_max, dtype=np.float64)
         self.max_age = params.stale_periods * np.asarray(periods, dtype=np.float64)
+        self._max_age = self.max_age.tolist()
         self.start_timeout = params.start_timeout
         self.arbiter = Arbiter(params, beta, rng)
         self.latest: list[Proposal | None] = [None] * len(self.names)
@@ -262,10 +263,12 @@ class Selector:
     def fresh(self, now: float) -> np.ndarray:
         """Which modules are selectable at ``now``: a proposal of this episode, not older
         than ``stale_periods`` periods. Shape (N,), bool."""
-        ok = np.zeros(len(self.names), dtype=bool)
-        for i, p in enumerate(self.latest):
-            ok[i] = p is not None and p.t >= self.t0 - 1e-9 and now - p.t <= self.max_age[i]
-        return ok
+        return np.array([self._fresh_one(i, now) for i in range(len(self.names))], dtype=bool)
+
+    def _fresh_one(self, i: int, now: float) -> bool:
+        """Whether module ``i`` is selectable at ``now`` (:meth:`fresh`)."""
+        p = self.latest[i]
+        return p is not None and p.t >= self.t0 - 1e-9 and now - p.t <= self._max_age[i]
 
     def on_proposals(self, proposals: Sequence[Proposal], now: float) -> Command | None:
         """New proposals (decided at the same instant) at time ``now``; the new command, or
@@ -275,6 +278,14 @@ class Selector:
         if not self.running or not proposals:
             return None
         t = max(p.t for p in proposals)
+        i = self.acting
+        if not self.waiting and self.mode == 'episode' and i >= 0 and self._fresh_one(i, now):
+            # the acting module is still fresh: it keeps acting (as below, without every
+            # module's freshness)
+            name = self.names[i]
+            if any(p.module == name for p in proposals):
+                return self._command(t, i, drawn=False)
+            return None
         ok = self.fresh(now)
         if self.waiting:
             if not ok.all() and now < self.t0 + self.start_timeout:

@@ -18,8 +18,8 @@ decoded ROS messages drive it alike.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
+from typing import NamedTuple
 
 from cr_sim.core.kernels import odometry, odometry_step
 import numpy as np
@@ -31,9 +31,10 @@ from clis_modules.core.policy import ACTION_DIM
 __all__ = ['Percept', 'Proposal', 'Decider']
 
 
-@dataclass(frozen=True)
-class Percept:
-    """What a module reads of the robot at one instant.
+class Percept(NamedTuple):
+    """What a module reads of the robot at one instant (immutable; a named tuple, not a frozen
+    dataclass: one is made at every decision instant, and a frozen dataclass's ``__init__``
+    costs several times more).
 
     Attributes
     ----------
@@ -58,9 +59,9 @@ class Percept:
         return cls(t, obs.dest_bearing, obs.d_o, obs.landmark_bearings)
 
 
-@dataclass(frozen=True)
-class Proposal:
-    """A module's decision at time ``t`` (what a module node publishes).
+class Proposal(NamedTuple):
+    """A module's decision at time ``t`` (what a module node publishes; immutable, a named
+    tuple as :class:`Percept`: one per decision).
 
     Attributes
     ----------
@@ -162,13 +163,15 @@ class Decider:
             loc.update(percept.landmark_bearings)
         self._first = False
         b = m.features(percept.dest_bearing, percept.d_o, percept.landmark_bearings)
-        mean = m.policy.mean(b)
-        sigma = m.policy.sigma_at(b)
+        pol = m.policy
+        # (10) mean v_max W_i b (GaussianPolicy.mean; b is a fresh float64 array already)
+        mean = pol.v_max * (pol.W @ b)
+        sigma = pol.sigma_at(b)
         # (10) u ~ N(v_max W_i b, sigma_i^2 I)
         u = mean + sigma * self.rng.standard_normal(ACTION_DIM)
-        # (1)(2) V_i(x) = w_i^T b_i(x)
-        value = m.value(b)
-        return Proposal(m.name, float(percept.t), b, u, mean, float(sigma), float(value),
+        # (1)(2) V_i(x) = w_i^T b_i(x) (LinearValue.__call__)
+        value = float(m.value_fn.w @ b)
+        return Proposal(m.name, float(percept.t), b, u, mean, float(sigma), value,
                         self.version)
 
     def set_parameters(self, w: ArrayLike, W: ArrayLike, sigma: float,  # noqa: N803

@@ -96,6 +96,9 @@ class RbfGrid:
         self._flat_centers = np.concatenate(self.centers)
         self._sizes = np.array([len(c) for c in self.centers], dtype=np.int64)
         self._periodic = np.array(self.periodic, dtype=np.bool_)
+        # scratch of __call__'s exponents: one call at a time per grid (each scheduler of the
+        # project decides a module from one thread)
+        self._q = np.empty(len(self._flat_centers))
 
     @property
     def dim(self) -> int:
@@ -151,8 +154,9 @@ class RbfGrid:
         if any(math.isnan(v) for v in xs.tolist()):
             b[-1] = 1.0                                  # not visible: b = e_n
             return b
-        q = _rbf_exponents(xs, self._flat_centers, self._sizes, self.phi, self._periodic,
-                           self.normalize)
+        q = self._q
+        _rbf_exponents(xs, self._flat_centers, self._sizes, self.phi, self._periodic,
+                       self.normalize, q)
         # b_j(x) = exp(-||x - x_j||^2 / phi), one dimension at a time (III-B, III-C)
         _rbf_products(np.exp(-q), self._sizes, self.normalize, b)
         return b
@@ -160,11 +164,11 @@ class RbfGrid:
 
 @njit
 def _rbf_exponents(x: np.ndarray, centers: np.ndarray, sizes: np.ndarray, phi: np.ndarray,
-                   periodic: np.ndarray, normalize: bool) -> np.ndarray:
-    """``(x_k - c_kj)^2 / phi_k`` per dimension k (distance wrapped where periodic, as
-    :func:`~cr_sim.core.geometry.wrap_angles`; minus its smallest value per dimension when
-    ``normalize``), concatenated: shape (sum n_k,)."""
-    q = np.empty(centers.shape[0])
+                   periodic: np.ndarray, normalize: bool, q: np.ndarray) -> None:
+    """``q`` <- ``(x_k - c_kj)^2 / phi_k`` per dimension k (distance wrapped where periodic,
+    as :func:`~cr_sim.core.geometry.wrap_angles`; minus its smallest value per dimension when
+    ``normalize``), concatenated: shape (sum n_k,) (written in place: a kernel that returns
+    a new array pays for boxing it at every call)."""
     start = 0
     for k in range(sizes.shape[0]):
         stop = start + sizes[k]
@@ -183,7 +187,6 @@ def _rbf_exponents(x: np.ndarray, centers: np.ndarray, sizes: np.ndarray, phi: n
             for j in range(start, stop):
                 q[j] -= low
         start = stop
-    return q
 
 
 #: Length up to which :func:`_pairwise_sum` reproduces ``np.sum`` (numpy's block size).

@@ -551,9 +551,11 @@ class Simulator:
         # obstacle (the first boxes). Walls and short obstacles hide nothing.
         dx = self._targets_x - x
         dy = self._targets_y - y
-        ir, bearing = kernels.scan(x, y, th, self._ir_angles, self._targets_x, self._targets_y,
-                                   np.arctan2(dy, dx), self._planes, self._n_tall, self._r,
-                                   self._ir_range, noise, self._noisy)
+        # kernels.scan into new arrays made here (a kernel returning arrays boxes them)
+        ir, bearing = np.empty(self._n_ir), np.empty(len(self._targets_x))
+        kernels.scan_into(x, y, th, self._ir_angles, self._targets_x, self._targets_y,
+                          np.arctan2(dy, dx), self._planes, self._n_tall, self._r,
+                          self._ir_range, noise, self._noisy, ir, bearing)
         if self._cam_range is not None:
             bearing[np.hypot(dx, dy) > self._cam_range] = np.nan
         lm = bearing[1:]
