@@ -50,7 +50,7 @@ def main() -> int:
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = usage.ru_utime + usage.ru_stime
     full = args.seeds == 10 and args.episodes == 1000
-    print(f'{wall / 60:.0f} min {wall % 60:.0f} s wall, {cpu / 60:.1f} min CPU, '
+    print(f'{int(wall // 60)} min {wall % 60:.0f} s wall, {cpu / 60:.1f} min CPU, '
           f'{args.workers} workers' + (f' (goal <= {GOAL_S // 60} min)' if full else ''))
     label = (f'full reproduction (5 conditions x {args.seeds} seeds x {args.episodes} '
              f'episodes, {args.workers} workers): wall (CPU)')

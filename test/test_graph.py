@@ -3,7 +3,7 @@
 One short Async run is observed by a probe node (graph API, every stream): nodes, topics and
 types match the README's tables; each module proposes exactly at its period under sim time;
 lockstep answers every instant. A second run has a module and then the learner killed.
-The arbiter's choice frequencies are tested against (3) on a standalone arbiter node.
+The arbiter's choice frequencies against (3): test_graph_arbiter.py.
 """
 
 from __future__ import annotations
@@ -17,23 +17,16 @@ import subprocess
 import sys
 import time
 
-from clis_modules.core.arbiter import selection_probs
-from clis_modules.core.decider import Proposal
-from clis_modules.core.modules import condition_periods, load_module_params, module_gamma
-from clis_modules.graph_node import proposal_qos
+from clis_modules.core.modules import condition_periods, load_module_params
 from cr_sim.conversions import from_time
 from cr_sim.core.params import config_dir, ros_parameters
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid
 import numpy as np
 import pytest
-from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_util import Probe
-from scipy import stats
 from sensor_msgs.msg import JointState
-
-from clis_modules import conversions as mconv
 
 pytestmark = pytest.mark.ros
 
@@ -323,69 +316,6 @@ def test_killed_module_and_learner_rejoin_without_losing_an_update(tmp_path):
     gaps = np.diff(versions)
     assert np.all(gaps >= 1) and np.count_nonzero(gaps > 1) <= 1, versions
     assert subprocess.run(['pgrep', '-P', str(proc.pid)], capture_output=True).stdout == b''
-
-
-def test_arbiter_choice_frequencies_match_eq3(tmp_path):
-    """A standalone arbiter node (wall time, a draw at every proposal) against (3)."""
-    beta = 60.0
-    values = {'innate': 0.2, 'view': 0.5, 'place': 0.3}
-    params = load_module_params()
-    gammas = np.array([module_gamma(params.common, PERIODS[m]) for m in MODULES])
-    expected = selection_probs([values[m] for m in MODULES], gammas, beta)
-    assert expected.max() - expected.min() > 0.2          # the test can tell them apart
-    arb = subprocess.Popen([sys.executable, '-m', 'clis_modules.arbiter_node', '--ros-args',
-                            '-p', 'use_sim_time:=false', '-p', 'arbiter.selection:=decision',
-                            '-p', f'common.beta:={beta}', '-p', 'graph.condition:=async'],
-                           stdout=(tmp_path / 'arbiter.log').open('w'), stderr=subprocess.STDOUT)
-    probe = Probe('arbiter_probe')
-    try:
-        probe.listen(JointState, 'arbiter/selection', depth=5000)
-        qos = proposal_qos(GRAPH['liveliness_lease'], depth=1000)   # what the arbiter asks
-        pubs = {m: probe.node.create_publisher(JointState, f'{m}/proposal', qos)
-                for m in MODULES}
-        episode = probe.node.create_publisher(
-            DiagnosticArray, 'episode',
-            QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()),
-                                60)
-        now = probe.node.get_clock().now().nanoseconds * 1e-9
-        msg = DiagnosticArray(status=[DiagnosticStatus(message='start', name='episode',
-                                                       values=[KeyValue(key='episode',
-                                                                        value='1')])])
-        msg.header.stamp = probe.node.get_clock().now().to_msg()
-        episode.publish(msg)
-        probe.spin_for(0.5)
-        rounds = 400
-        draws = probe.msgs['arbiter/selection']
-        # a draw per proposal, but the first round's: the episode's first draw waits for every
-        # module's first proposal
-        per_round = [1] + [len(MODULES)] * (rounds - 1)
-        for new in per_round:
-            # closed loop: the next round once this one is drawn, so that no proposal reaches
-            # the arbiter stale (older than its staleness limit: dropped, no draw), however
-            # loaded the machine
-            t = probe.node.get_clock().now().nanoseconds * 1e-9
-            before = len(draws)
-            for m in MODULES:
-                p = Proposal(m, t, np.zeros(3), np.zeros(2), np.zeros(2), 0.1, values[m], 0)
-                pubs[m].publish(mconv.proposal_msg(p, t))
-            probe.spin_until(lambda n=before + new: len(draws) >= n, 2.0)
-        assert probe.spin_until(lambda: len(draws) >= sum(per_round), 10), (
-            len(draws), (tmp_path / 'arbiter.log').read_text()[-3000:])
-        probe.spin_for(1.0)
-        draws = [m for m in probe.msgs['arbiter/selection'] if stamp(m) > now]
-        full = [m for m in draws if np.all(np.array(m.position) > 0)]
-        for m in full[:20]:
-            assert list(m.position) == pytest.approx(list(expected), rel=1e-9)
-        counts = np.array([sum(m.header.frame_id == name for m in full) for name in MODULES])
-        chi2 = stats.chisquare(counts, expected * counts.sum())
-        assert chi2.pvalue > 1e-3, (counts, expected)
-        # and the test has power: uniform choices would be rejected
-        assert stats.chisquare(counts).pvalue < 1e-3
-    finally:
-        probe.close()
-        arb.send_signal(signal.SIGINT)
-        arb.wait(timeout=20)
 
 
 def test_loopback_only_while_the_graph_runs(tmp_path):
