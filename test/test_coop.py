@@ -125,6 +125,21 @@ def test_normalised_selection_hand_computed():
         selection_probs(v, [0.9] * 3, 1.0, rule='greedy')
 
 
+def test_epsilon_soft_selection_keeps_every_available_module_acting():
+    v, g = [1.0, 0.0, -1.0], [0.9, 0.8, 0.5]
+    greedy = selection_probs(v, g, 50.0, rule='normalized')
+    assert greedy[1] < 1e-20                          # beta = 50: the best module only
+    soft = selection_probs(v, g, 50.0, rule='normalized', explore=0.3)
+    assert soft == pytest.approx(0.7 * greedy + 0.1)  # (1 - eps) Pr + eps / 3
+    # unavailable modules stay at 0; epsilon is spread over the available ones
+    soft = selection_probs(v, g, 50.0, [True, True, False], 'normalized', explore=0.3)
+    assert soft[2] == 0.0 and soft[1] == pytest.approx(0.15) and soft.sum() == pytest.approx(1)
+    # epsilon = 0 is the rule bit for bit (the paper preset)
+    assert selection_probs(v, g, 2.0, explore=0.0).tolist() == selection_probs(v, g, 2.0).tolist()
+    with pytest.raises(Exception, match='arbiter.explore'):
+        load_clis_params(overrides={'arbiter.explore': 1.5})
+
+
 # ------------------------------------------------------------------------------ steps
 
 

@@ -219,7 +219,8 @@ class Learner:
         gammas = [mod.gamma for mod in self.modules]
         rows = values[:1] if self.arbiter.selection == 'episode' else values
         probs = np.array([selection_probs(v, gammas, self.beta, None, self.arbiter.rule,
-                                          self.arbiter.scale_min) for v in rows])
+                                          self.arbiter.scale_min, self.arbiter.explore)
+                          for v in rows])
         return pi, probs[0] if self.arbiter.selection == 'episode' else probs
 
     # ------------------------------------------------------------------ step 4-5
