@@ -92,8 +92,13 @@ def test_link_loss_stops_reports_and_reconnects_losing_only_frames_in_flight(pro
         assert time.monotonic() - t_cut < 1.5
         end = p.msgs['episode'][-1].status[0]
         assert {kv.key: kv.value for kv in end.values}['reason'] == 'link_lost'
+        # readings the bridge sent before it saw the loss may still be on their way (loaded
+        # machine): count from once it has said so
+        p.spin_for(0.2)
+        n_down = len(p.msgs['wheels'])
+        assert n_down - n_cut <= 3, 'readings went on after the cable was pulled'
         p.spin_for(1.5)                             # down: the bridge retries with backoff
-        assert len(p.msgs['wheels']) == n_cut, 'nothing is published while the link is down'
+        assert len(p.msgs['wheels']) == n_down, 'nothing is published while the link is down'
         robot.start_emulator()                      # plugged in again
         t_back = time.monotonic()
         assert p.spin_until(lambda: diag(p)[-1][1] == 'connected', 10), diag(p)[-3:]

@@ -212,11 +212,13 @@ def test_episode_gate_learner_wait_and_lockstep():
     gate.started(1)
     gate.published(t=0.0, now=1.2)
     assert gate.holding
-    gate.on_command(stamp=-0.05)                              # an old command does not count
+    assert gate.on_command(stamp=-0.05, now=1.3) is None     # an old command does not count
     assert gate.holding
     assert gate.poll(1.45) == ('resend', None)                # the readings again
-    gate.on_command(stamp=0.0)
+    # the round trip from the instant's first publication, resends included
+    assert gate.on_command(stamp=0.0, now=1.5) == pytest.approx(0.3)
     assert not gate.holding
+    assert gate.on_command(stamp=0.0, now=1.6) is None        # a copy: nothing held any more
     gate.published(t=0.05, now=2.0)
     action, warning = gate.poll(3.1)                          # no controller: run free
     assert action == 'go' and 't = 0.050' in warning and not gate.holding

@@ -118,6 +118,38 @@ def test_corrections_registry():
 
 # ------------------------------------------------------------------------------ (8)
 
+def _td_lambda_is_reference(w, B, r, rho, gamma_i, lambda_, alpha):  # noqa: N803
+    """(8) as numpy code, step by step (the implementation before it was compiled)."""
+    w = np.array(w, dtype=np.float64)
+    c = importance_products(rho)
+    e = np.zeros_like(w)
+    delta = np.empty(len(B))
+    alpha = np.broadcast_to(alpha, (len(B),))
+    for l in range(len(B)):  # noqa: E741
+        v_next = float(w @ B[l + 1]) if l + 1 < len(B) else 0.0
+        d = r[l] + gamma_i * c[l] * v_next - float(w @ B[l])
+        e *= lambda_ * gamma_i * rho[l]
+        e += c[l] * B[l]
+        w += (alpha[l] * d) * e
+        delta[l] = d
+    return w, delta, c
+
+
+def test_td_lambda_is_is_the_numpy_reference_bit_for_bit():
+    rng = np.random.default_rng(11)
+    for n, steps in [(1, 3), (10, 240), (82, 120), (4801, 50), (7, 1)]:
+        B = rng.random((steps, n))  # noqa: N806
+        r = rng.normal(size=steps) * (rng.random(steps) < 0.1)
+        rho = rng.uniform(0.3, 2.0, steps)
+        w = rng.normal(size=n)
+        for alpha in (0.1, rng.uniform(0.01, 0.2, steps)):
+            got = td_lambda_is(w, B, r, rho, 0.99, 0.9, alpha)
+            with np.errstate(over='ignore', invalid='ignore'):   # diverging, as (8) can
+                want = _td_lambda_is_reference(w, B, r, rho, 0.99, 0.9, alpha)
+            for a, b in zip(got, want):
+                np.testing.assert_array_equal(a, b)
+
+
 def test_td_lambda_is_hand_computed():
     w0 = np.array([0.5, 0.0])
     B = np.array([[1.0, 0.0], [0.0, 1.0]])  # noqa: N806

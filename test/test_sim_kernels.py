@@ -4,20 +4,27 @@ reference numpy/Python code they replace: bit for bit where the docstrings say s
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
+from clis_modules.core.decider import Decider
 from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.localization import (
+    _EXP_LOG_LIK_MIN,
+    _LOG_LIK_MIN,
     MarkovLocalizer,
     _blur,
     _gaussian_weights,
     _log_likelihood,
+    _row_max,
+    _sub_pose_sums,
+    _unclipped,
 )
 from clis_modules.core.modules import arena_map, load_module_params
 from cr_sim.core import kernels
 from cr_sim.core.arena import load_arena
 from cr_sim.core.geometry import box_planes, disc_gap, slab_planes, wrap_angle, wrap_angles
 from cr_sim.core.robot import clamp_wheels, integrate_arc, twist_to_wheels, wheels_to_twist
-from cr_sim.core.sim import load_sim_params
+from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -76,6 +83,43 @@ def test_move_kernel_is_the_reference_motion_bit_for_bit(world):
         assert got == want
         blocked += want[5]
     assert blocked > 100                     # the contact search was exercised
+
+
+def test_hold_is_repeated_steps_bit_for_bit(world):
+    """Simulator.hold(u, n) = step(u) until n steps, a reward or the end: same poses, wheels,
+    flags and rewards; odometry composed over its wheels = per step."""
+    params, arena = world
+    held = Simulator(arena, params, np.random.default_rng(1))
+    stepped = Simulator(arena, params, np.random.default_rng(1))
+    rng = np.random.default_rng(6)
+    # deciders of a module that localizes (only its odometry is used here)
+    d_held, d_step = (Decider(SimpleNamespace(localizer=object(), reset=lambda: None), rng,
+                              params.robot.wheel_base) for _ in range(2))
+    dt = params.episode.dt
+    ends = 0
+    for _ in range(6):
+        held.reset('random')
+        stepped.reset('random')
+        while not held.done:
+            u = rng.uniform(-0.6, 0.6, 2)
+            n = int(rng.integers(1, 40))
+            res, wheels = held.hold(u, n)
+            d_held.on_wheel_steps(wheels, dt)
+            assert res.steps == len(wheels) and 1 <= res.steps <= n
+            for k in range(res.steps):
+                ref = stepped.step(u)
+                np.testing.assert_array_equal(wheels[k], stepped.wheels)
+                d_step.on_wheels(*stepped.wheel_speeds, dt)
+                if k < res.steps - 1:
+                    assert ref.reward == 0.0 and not ref.done
+            assert (ref.t, ref.reward, ref.collision, ref.reached, ref.timeout) == (
+                res.t, res.reward, res.collision, res.reached, res.timeout)
+            assert res.steps == n or res.reward != 0.0 or res.done
+            np.testing.assert_array_equal(held.pose, stepped.pose)
+            assert held.wheel_speeds == stepped.wheel_speeds and held.touching == stepped.touching
+            assert d_held._odo == d_step._odo
+            ends += res.reward != 0.0
+    assert ends > 0
 
 
 def test_scan_kernel_is_the_reference_sensor_model_bit_for_bit(world):
@@ -196,6 +240,34 @@ def test_localization_likelihood_is_the_von_mises_sum(localizer):
     want = loc.kappa * np.cos(zs[None, None, None, :, None, None] - mu)
     want = (want * seen[None, None, None, :, None, None]).sum(axis=3)
     np.testing.assert_allclose(got, want.reshape(got.shape), rtol=0, atol=1e-9)
+
+
+def test_localization_cell_likelihood_is_the_reference_bit_for_bit(localizer):
+    """Pr(s | cell): exp of the clipped log-likelihoods summed over the sub-poses, computed
+    only where a cell has an unclipped sub-pose, = the whole array's numpy reference."""
+    loc = localizer
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        z = rng.uniform(-math.pi, math.pi, len(loc.landmarks_xy))
+        z[rng.random(len(z)) < 0.3] = np.nan
+        seen = np.isfinite(z)
+        if not seen.any():
+            continue
+        zs = np.where(seen, z, 0.0)
+        rows = _log_likelihood(np.cos(zs), np.sin(zs), seen, loc.kappa, loc._cos_phi,
+                               loc._sin_phi, loc._cos_th, loc._sin_th).reshape(loc._n_sub, -1)
+        v = np.maximum(rows - rows.max(), _LOG_LIK_MIN)
+        e = np.full(v.shape, _EXP_LOG_LIK_MIN)
+        e[v > _LOG_LIK_MIN] = np.exp(v[v > _LOG_LIK_MIN])
+        want = e[0].copy()
+        for row in e[1:]:
+            want += row
+        cell_max = _row_max(rows)
+        np.testing.assert_array_equal(cell_max, rows.max(axis=0))
+        best = float(cell_max.max())
+        cells, vals = _unclipped(rows, cell_max, best, _LOG_LIK_MIN)
+        got = _sub_pose_sums(rows, cells, best, _LOG_LIK_MIN, _EXP_LOG_LIK_MIN, np.exp(vals))
+        np.testing.assert_array_equal(got, want)
 
 
 def test_rbf_single_input_is_the_batch_row_bit_for_bit():

@@ -35,9 +35,10 @@ from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job, wa
 
 #: Where the runs execute (``--backend``).
 BACKENDS = ('process', 'ray')
-#: Relative cost of an episode per condition (measured: the place module's localization makes
-#: place, sync and async the slow ones), to start the longest runs first.
-_COST = {'innate': 1.0, 'view': 1.0, 'place': 2.0, 'sync': 2.0, 'async': 3.0}
+#: Relative cost of an episode per condition, to start the longest runs first (measured per
+#: learned run of 1000 episodes, docs/benchmarks.md issue 8: Async 38-41 s, Sync 32, Place 22,
+#: View 8, Innate 7 CPU-s; the place module's localization makes the last three the slow ones).
+_COST = {'innate': 1.0, 'view': 1.0, 'place': 3.0, 'sync': 4.5, 'async': 5.5}
 
 
 def longest_first(specs: list[JobSpec]) -> list[JobSpec]:

@@ -21,6 +21,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     from clis_modules.arbiter_node import ArbiterNode
     from clis_modules.module_node import ModuleNode
     from cr_sim.core.params import ConfigError
+    from cr_sim.lifecycle import settle_heap
     from cr_sim.sim_node import SimNode, run
     import rclpy
     from rclpy.clock import Clock, ClockType
@@ -68,6 +69,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     monitor.node.create_timer(0.2, on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
     for node in [*nodes, monitor.node]:
         executor.add_node(node)
+    settle_heap()
     try:
         run(nodes[-1], executor)                 # the simulator is the plan's last child
     except KeyboardInterrupt:

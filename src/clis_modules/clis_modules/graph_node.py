@@ -34,7 +34,7 @@ from typing import Any
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down
+from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 import rclpy
@@ -271,6 +271,7 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
         raise SystemExit(2) from None
     executor = make_executor(node.graph.executor)
     executor.add_node(node)
+    settle_heap()
     profiler = start_profile()
     try:
         executor.spin()

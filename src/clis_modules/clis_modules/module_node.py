@@ -358,7 +358,9 @@ class ModuleNode(GraphNode):
         msg = conv.proposal_msg(p, self.now_s())
         self.pub.publish(msg)
         self.sent = (msg, time.monotonic())
-        if self.pub_belief is not None:
+        # display only: built only for a subscriber (RViz, Foxglove, a recorder), after the
+        # proposal, which the arbiter waits for
+        if self.pub_belief is not None and self.pub_belief.get_subscription_count():
             loc = self.decider.module.localizer
             self.pub_belief.publish(conv.belief_msg(
                 loc.belief_grid, loc.cell, loc.origin, t, self.cfg.frame))

@@ -1,4 +1,9 @@
-"""How a node process tells a clean stop from a crash.
+"""A node process's life: its heap settled before it spins, and a clean stop told from a crash.
+
+Before spinning, a node moves the objects alive then (rclpy, numpy, numba and their modules,
+the node itself: ~75,000 objects) out of the garbage collector's reach (:func:`settle_heap`):
+a full collection otherwise walks them all, a pause of 0.1-0.5 s measured in a graph node,
+which lands on the decision path whenever it comes. Objects made later are collected as usual.
 
 Ctrl-C or SIGTERM shuts the rclpy context down from a signal handler, possibly while the
 executor is building its wait set or taking a message. rclpy then raises from inside the
@@ -10,10 +15,12 @@ the context is still valid it is a real error.
 
 from __future__ import annotations
 
+import gc
+
 import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['SHUTDOWN_RACES', 'RCLError', 'reraise_unless_shut_down']
+__all__ = ['SHUTDOWN_RACES', 'RCLError', 'reraise_unless_shut_down', 'settle_heap']
 
 RCLError = _rclpy.RCLError
 #: What the executor may raise when the context is shut down under it.
@@ -24,3 +31,10 @@ def reraise_unless_shut_down() -> None:
     """Inside an ``except SHUTDOWN_RACES:`` block: re-raise unless rclpy was shut down."""
     if rclpy.ok():
         raise
+
+
+def settle_heap() -> None:
+    """Collect the garbage of the start-up, then freeze what is alive (module docstring): the
+    collector's later passes skip it (``gc.freeze``, Python >= 3.7)."""
+    gc.collect()
+    gc.freeze()

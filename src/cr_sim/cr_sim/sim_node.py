@@ -15,6 +15,7 @@ replaced by a stop.
 
 from __future__ import annotations
 
+from collections import deque
 import time
 
 import numpy as np
@@ -29,7 +30,7 @@ from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param,
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
 from cr_sim.interface import open_robot_interface
-from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down
+from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 
@@ -62,6 +63,8 @@ class SimNodeParams:
                                                 "controller's decision periods); 0 = every tick")
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
+    round_trip_log: str = param(doc="lockstep: append 'sim_time round_trip_ms' of every held "
+                                "instant to this file ('' = none); p50/p99 are logged at exit")
 
 
 class SimNode(Node):
@@ -92,6 +95,10 @@ class SimNode(Node):
         self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout,
                                 self.cfg.lockstep, self.cfg.command_timeout,
                                 hold_periods=self.cfg.lockstep_periods)
+        # sensor-to-command round trips of the held instants [wall s], the newest 100,000
+        self.round_trips: deque[float] = deque(maxlen=100_000)
+        self._round_trip_log = (open(self.cfg.round_trip_log, 'a', buffering=1 << 16)
+                                if self.cfg.round_trip_log else None)
 
         open_robot_interface(self, self.arena, self.cfg.map_frame, self.cfg.cmd_vel_stamped,
                              self.cfg.wait_for_learner)
@@ -104,6 +111,18 @@ class SimNode(Node):
             f'speed x{self.cfg.speed_factor or "max"}, cmd_vel '
             f'{"TwistStamped" if self.cfg.cmd_vel_stamped else "Twist"}')
 
+    def destroy_node(self) -> None:
+        if self.round_trips:
+            rtt = np.array(self.round_trips) * 1e3
+            self.get_logger().info(
+                f'sensor-to-command round trip over the last {rtt.size} held instants: p50 '
+                f'{np.percentile(rtt, 50):.2f} ms, p99 {np.percentile(rtt, 99):.2f} ms, max '
+                f'{rtt.max():.2f} ms')
+        if self._round_trip_log is not None:
+            self._round_trip_log.close()
+            self._round_trip_log = None
+        super().destroy_node()
+
     @property
     def dt(self) -> float:
         return self.params.episode.dt
@@ -115,7 +134,12 @@ class SimNode(Node):
         # Clamped in the core (NaN/inf -> 0, limit): a bad command never reaches the wheels.
         self.u = conv.wheels_from_cmd(msg, self.wheel_base)
         self.u_time = self.sim.t
-        self.gate.on_command(stamp)
+        held = self.gate.t
+        rtt = self.gate.on_command(stamp, time.monotonic())
+        if rtt is not None:
+            self.round_trips.append(rtt)
+            if self._round_trip_log is not None:
+                self._round_trip_log.write(f'{held:.6f} {rtt * 1e3:.4f}\n')
 
     def _on_progress(self, msg) -> None:
         _, _, values = conv.event_from_msg(msg)
@@ -275,6 +299,7 @@ def main(args: list[str] | None = None) -> None:
         raise SystemExit(2) from None
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+    settle_heap()
     profiler = start_profile()
     try:
         run(node, executor)

@@ -185,8 +185,11 @@ class StreamBuffer:
         do not modify it afterwards). False (ignored): a decision at ``t`` is there already (a
         module sends its last proposal again while the clock stands still)."""
         items = self._dec[module]
-        if any(abs(tk - t) <= TIME_TOL for tk, _ in items[-8:]):
-            return False
+        # sorted by time: nothing within the tolerance when the newest is older than that
+        if items and items[-1][0] >= t - TIME_TOL:
+            for tk, _ in items[-8:]:
+                if abs(tk - t) <= TIME_TOL:
+                    return False
         _insert(items, (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
         return True
 

@@ -113,6 +113,9 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     # the modules due at tick k are schedule[k % cycle] (cycle: the periods' common multiple)
     cycle = math.lcm(*every)
     schedule = [[d for d, n in zip(deciders, every) if k % n == 0] for k in range(cycle)]
+    # ticks from tick k to the next one at which a module is due (tick 0 has them all)
+    gaps = [next(j for j in range(1, cycle + 1) if schedule[(k + j) % cycle])
+            for k in range(cycle)]
     sim.reset(start=start, heading=heading)
     for d in deciders:
         d.reset()
@@ -133,14 +136,13 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
                 u_exec = cmd.u_exec
                 if cmd.module >= 0:
                     buffer.add_action(cmd.t, cmd.u, names[cmd.module])
-        res = sim.step(u_exec)
-        k += 1
+        # the command held until the next decision, or up to a reward or the episode's end
+        res, wheels = sim.hold(u_exec, gaps[k % cycle])
+        k += res.steps
         if res.reward != 0.0:
             buffer.add_reward(k * dt, res.reward)      # stamped at the end of the tick
-        if localizing:
-            v_left, v_right = sim.wheel_speeds
-            for d in localizing:
-                d.on_wheels(v_left, v_right, dt)
+        for d in localizing:
+            d.on_wheel_steps(wheels, dt)
         if res.done:
             break
     memory = buffer.cut(0.0, k * dt, res.reached, agent.memory)

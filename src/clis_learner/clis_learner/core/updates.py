@@ -30,6 +30,7 @@ is not part of any module's state, so a timeout is treated as terminal).
 from __future__ import annotations
 
 from clis_modules.core.value import gamma_i
+from cr_sim.core.kernels import njit
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -112,26 +113,46 @@ def td_lambda_is(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # no
     rho = np.asarray(rho, dtype=np.float64)
     c = importance_products(rho)
     n_steps = B.shape[0]
-    e = np.zeros_like(w)
-    delta = np.empty(n_steps)
-    decay = (lambda_ * gamma_i * rho).tolist()
-    r_list, c_list = np.asarray(r, dtype=np.float64).tolist(), c.tolist()
-    alpha_l = (np.broadcast_to(np.asarray(alpha, dtype=np.float64), (n_steps,)).tolist()
-               if np.ndim(alpha) else [float(alpha)] * n_steps)
-    for l in range(n_steps):  # noqa: E741 - the paper's step index
-        b = B[l]
-        v = float(w @ b)
-        v_next = float(w @ B[l + 1]) if l + 1 < n_steps else 0.0
-        # (8) delta_i <- r + gamma_i c_i V_i(x') - V_i(x)
-        d = r_list[l] + gamma_i * c_list[l] * v_next - v
-        # (8) e_i <- lambda_i gamma_i rho~_i e_i + c_i b_i(x)
-        e *= decay[l]
-        e += c_list[l] * b
-        # (8) w_i <- w_i + alpha_i delta_i e_i
-        a = alpha_l[l] if cap is None else bounded_step(alpha_l[l], cap, B, e)
-        w += (a * d) * e
-        delta[l] = d
+    decay = lambda_ * gamma_i * rho
+    alpha_l = np.ascontiguousarray(np.broadcast_to(np.asarray(alpha, dtype=np.float64),
+                                                   (n_steps,)))
+    delta = _td_lambda_is_steps(w, np.ascontiguousarray(B), np.asarray(r, dtype=np.float64),
+                                c, decay, alpha_l, float(gamma_i),
+                                0.0 if cap is None else float(cap))
     return w, delta, c
+
+
+@njit
+def _td_lambda_is_steps(w: np.ndarray, B: np.ndarray, r: np.ndarray,  # noqa: N803
+                        c: np.ndarray, decay: np.ndarray, alpha: np.ndarray,
+                        gamma_i: float, cap: float) -> np.ndarray:
+    """The steps of :func:`td_lambda_is`, compiled: ``w`` updated in place, the TD errors
+    returned. ``np.dot`` is the BLAS dot product numpy's ``@`` calls (same results, tested).
+    ``cap > 0``: each step bounded by :func:`bounded_step` (0: the paper's step)."""
+    n_steps, n = B.shape
+    e = np.zeros(n)
+    delta = np.empty(n_steps)
+    for l in range(n_steps):  # noqa: E741 - the paper's step index
+        v = np.dot(w, B[l])
+        v_next = np.dot(w, B[l + 1]) if l + 1 < n_steps else 0.0
+        # (8) delta_i <- r + gamma_i c_i V_i(x') - V_i(x)
+        d = r[l] + gamma_i * c[l] * v_next - v
+        # (8) e_i <- lambda_i gamma_i rho~_i e_i + c_i b_i(x)
+        # (8) w_i <- w_i + alpha_i delta_i e_i
+        if cap > 0.0:
+            for j in range(n):
+                e[j] = e[j] * decay[l] + c[l] * B[l, j]
+            # bounded: no value of the episode's states moves by more than cap |delta|
+            step = bounded_step(alpha[l], cap, B, e) * d
+            for j in range(n):
+                w[j] += step * e[j]
+        else:
+            step = alpha[l] * d
+            for j in range(n):
+                e[j] = e[j] * decay[l] + c[l] * B[l, j]
+                w[j] += step * e[j]
+        delta[l] = d
+    return delta
 
 
 def pg_weights(r: ArrayLike, c: ArrayLike, gamma_i: float) -> np.ndarray:
@@ -212,6 +233,7 @@ def step_sizes(alpha: float, B: ArrayLike, norm: str) -> np.ndarray:  # noqa: N8
     return alpha / np.maximum(np.einsum('ln,ln->l', B, B), MASS_MIN)
 
 
+@njit
 def bounded_step(alpha_l: float, cap: float, B: np.ndarray, e: np.ndarray) -> float:  # noqa: N803
     """The step of a TD update along the trace ``e``, bounded so that the value of no state of
     the episode moves by more than ``cap`` times the TD error (``step_norm = bounded``).
@@ -239,7 +261,7 @@ def bounded_step(alpha_l: float, cap: float, B: np.ndarray, e: np.ndarray) -> fl
     cap : float
         Largest move of a value per unit TD error (``alpha``).
     B : np.ndarray, shape (L, n)
-        Features of the episode's states.
+        Features of the episode's states (C-contiguous float64: compiled).
     e : np.ndarray, shape (n,)
         The trace after this step's features were added.
 
@@ -248,7 +270,7 @@ def bounded_step(alpha_l: float, cap: float, B: np.ndarray, e: np.ndarray) -> fl
     float
     """
     # Dabney & Barto 2012 bound over the episode's states: max_k |a e . b_k| <= cap
-    move = float(np.abs(B @ e).max())
+    move = np.abs(np.dot(B, e)).max()
     return min(alpha_l, cap / max(move, MASS_MIN))
 
 
@@ -292,7 +314,7 @@ def td_retrace(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # noqa
         ``min(rho_bar, rho_l)``, the importance weight of each step's TD error.
     """
     w = np.array(w, dtype=np.float64)
-    B = np.asarray(B, dtype=np.float64)  # noqa: N806
+    B = np.ascontiguousarray(B, dtype=np.float64)  # noqa: N806
     n_steps = B.shape[0]
     # Retrace / V-trace: rho_l and c_l = lambda min(c_bar, rho_l) truncated per step
     weight = np.minimum(np.asarray(rho, dtype=np.float64), rho_bar)

@@ -345,7 +345,8 @@ class Selector:
         u = self.latest[i].u
         v = self.v_max[i]
         # the robot executes the acting module's proposal within its speed limit (DESIGN 3)
-        return Command(float(t), i, u, np.clip(u, -v, v), drawn)
+        # = np.clip(u, -v, v), without its Python wrapper
+        return Command(float(t), i, u, np.minimum(np.maximum(u, -v), v), drawn)
 
     def _stop(self, t: float) -> Command:
         return Command(float(t), -1, np.zeros(2), np.zeros(2), False)

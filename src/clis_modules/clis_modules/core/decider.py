@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-from cr_sim.core.kernels import odometry_step
+from cr_sim.core.kernels import odometry, odometry_step
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -139,6 +139,14 @@ class Decider:
             return
         # wheels_to_twist then integrate_arc, compiled (called at every simulator tick)
         self._odo = odometry_step(*self._odo, v_left, v_right, self.wheel_base, dt)
+
+    def on_wheel_steps(self, wheels: np.ndarray, dt: float) -> None:
+        """:meth:`on_wheels` for each row ``(v_left, v_right)`` of ``wheels`` (K, 2), oldest
+        first, each held for ``dt`` [s] (the steps of :meth:`cr_sim.core.sim.Simulator.hold`):
+        the same arithmetic, compiled as one loop."""
+        if self.module.localizer is None:
+            return
+        self._odo = odometry(*self._odo, wheels, self.wheel_base, dt)
 
     def decide(self, percept: Percept) -> Proposal:
         """Decide at ``percept.t``: features, then ``u ~ pi_i(x, .)`` (10) and ``V_i(x)``."""

@@ -148,7 +148,7 @@ class RbfGrid:
         if self.n_rbf > _PAIRWISE_BLOCK:
             return self.batch(xs[None, :])[0]
         b = np.zeros(self.n)
-        if np.isnan(xs).any():
+        if any(math.isnan(v) for v in xs.tolist()):
             b[-1] = 1.0                                  # not visible: b = e_n
             return b
         q = _rbf_exponents(xs, self._flat_centers, self._sizes, self.phi, self._periodic,

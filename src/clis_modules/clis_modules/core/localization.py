@@ -156,6 +156,7 @@ class MarkovLocalizer:
             raise ValueError('every grid cell lies inside an obstacle')
         self._free = np.broadcast_to(free, self.shape).astype(np.float64)
         self._uniform = self._free / self._free.sum()
+        self._floor_uniform = params.floor * self._uniform
 
         # phi_m(p) = atan2(l_y - y, l_x - x): direction of landmark m from each sub-position p
         # (sub_cells^2 points inside each cell), and the sub-headings theta (sub_headings
@@ -234,7 +235,8 @@ class MarkovLocalizer:
             #                                 mode=('wrap', 'reflect', 'reflect'))
             w_xy = _gaussian_weights(s_xy, 3.0)
             p = _blur(p, _gaussian_weights(s_th, 3.0), w_xy, w_xy)
-        self._p = self._normalised(p * self._free)
+        p *= self._free
+        self._p = self._normalised(p)
 
     def predict_wheels(self, wheels: ArrayLike, dt: float, wheel_base: float) -> None:
         """Motion update from the executed wheel velocities of consecutive simulator steps.
@@ -261,14 +263,7 @@ class MarkovLocalizer:
         """Steps 1-2 of the motion update: every heading layer k shifted by
         ``R(theta_k) (dx, dy)`` (bilinear, zero fill), then the heading axis rolled by
         ``dtheta`` (periodic, linear weights between bins) (:func:`_shift_kernel`)."""
-        _, n, ny = self.shape
-        sx = np.clip((self._cos_k * dx - self._sin_k * dy) / self.cell, -n - 1.0, n + 1.0)
-        sy = np.clip((self._sin_k * dx + self._cos_k * dy) / self.cell, -ny - 1.0, ny + 1.0)
-        ix, iy = np.floor(sx), np.floor(sy)                              # (K,) in cells
-        st = dtheta / self.bin
-        it = math.floor(st)
-        return _shift_kernel(p, ix.astype(np.int64), sx - ix, iy.astype(np.int64), sy - iy,
-                             int(it), st - it)
+        return _shift_pose(p, self._cos_k, self._sin_k, dx, dy, dtheta, self.cell, self.bin)
 
     # ------------------------------------------------------------------ sensor update
 
@@ -294,13 +289,16 @@ class MarkovLocalizer:
         loglik = _log_likelihood(np.cos(zs), np.sin(zs), seen, self.kappa, self._cos_phi,
                                  self._sin_phi, self._cos_th, self._sin_th)
         # minus the best, clipped at _LOG_LIK_MIN (no denormals), then exp: the clipped entries
-        # (about 97%) all get exp(_LOG_LIK_MIN), the others numpy's exp
-        flat = loglik.reshape(-1)
-        idx, vals = _clip_compact(flat, loglik.max(), _LOG_LIK_MIN, _EXP_LOG_LIK_MIN)
-        flat[idx] = np.exp(vals)
+        # (about 97%) all get exp(_LOG_LIK_MIN), the others numpy's exp; a cell whose best
+        # sub-pose is clipped has them all clipped (found from the per-cell maxima)
+        rows = loglik.reshape(self._n_sub, -1)
+        cell_max = _row_max(rows)
+        best = float(cell_max.max())
+        cells, vals = _unclipped(rows, cell_max, best, _LOG_LIK_MIN)
         # Pr(s | cell) = mean over its sub-poses (the pose is anywhere inside the cell); the
         # constant 1/S cancels in the normalisation
-        lik = _sum_rows(loglik.reshape(self._n_sub, -1)).reshape(self.shape)
+        lik = _sub_pose_sums(rows, cells, best, _LOG_LIK_MIN, _EXP_LOG_LIK_MIN,
+                             np.exp(vals)).reshape(self.shape)
         # b(x) <- eta Pr(s | x) b(x)
         p = lik * self._p
         total = p.sum()
@@ -310,14 +308,16 @@ class MarkovLocalizer:
         f = self.params.floor
         p *= (1.0 - f) / total
         if f > 0.0:
-            p += f * self._uniform
+            p += self._floor_uniform                 # f * uniform
         self._p = p
 
     def _normalised(self, p: np.ndarray) -> np.ndarray:
+        """``p / sum(p)``, in place (``p`` is a new array of the caller's)."""
         total = p.sum()
         if not (total > 0.0 and math.isfinite(total)):
             return self._uniform.copy()
-        return p / total
+        p /= total
+        return p
 
 
 # ------------------------------------------------------------------ compiled kernels
@@ -360,10 +360,14 @@ def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.n
     if w0.size:
         r = w0.size // 2
         for k in range(n_k):
-            dst[k] = src[k] * w0[r]
+            for i in range(nx):
+                for c in range(ny):
+                    dst[k, i, c] = src[k, i, c] * w0[r]
             for j in range(-r, 0):
                 lo, hi = _extend(k + j, n_k, True), _extend(k - j, n_k, True)
-                dst[k] += (src[lo] + src[hi]) * w0[r + j]
+                for i in range(nx):
+                    for c in range(ny):
+                        dst[k, i, c] += (src[lo, i, c] + src[hi, i, c]) * w0[r + j]
         src, dst = dst, src
     if w1.size:
         r = w1.size // 2
@@ -390,6 +394,28 @@ def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.n
                         dst[k, i, c] += (line[c + r + j] + line[c + r - j]) * w2[r + j]
         src, dst = dst, src
     return src
+
+
+@njit
+def _shift_pose(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, dy: float,
+                dtheta: float, cell: float, bin_: float) -> np.ndarray:
+    """Steps 1-2 of the motion update (:meth:`MarkovLocalizer._shift`): layer k's shift
+    ``R(theta_k) (dx, dy)`` in cells (clipped to the grid's size plus one) and the heading
+    roll ``dtheta`` in bins, split into whole cells and fractions for :func:`_shift_kernel`."""
+    n_k, n, ny = p.shape
+    ix = np.empty(n_k, dtype=np.int64)
+    iy = np.empty(n_k, dtype=np.int64)
+    fx = np.empty(n_k)
+    fy = np.empty(n_k)
+    for k in range(n_k):
+        sx = min(max((cos_k[k] * dx - sin_k[k] * dy) / cell, -n - 1.0), n + 1.0)
+        sy = min(max((sin_k[k] * dx + cos_k[k] * dy) / cell, -ny - 1.0), ny + 1.0)
+        ax, ay = math.floor(sx), math.floor(sy)
+        ix[k], fx[k] = int(ax), sx - ax
+        iy[k], fy[k] = int(ay), sy - ay
+    st = dtheta / bin_
+    it = math.floor(st)
+    return _shift_kernel(p, ix, fx, iy, fy, int(it), st - it)
 
 
 @njit
@@ -496,29 +522,55 @@ def _log_likelihood(cos_z: np.ndarray, sin_z: np.ndarray, seen: np.ndarray, kapp
 
 
 @njit
-def _clip_compact(a: np.ndarray, best: float, low: float, exp_low: float
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """``v = max(a - best, low)`` of every entry of ``a`` (N,); ``a`` is overwritten with
-    ``exp_low`` and the entries with ``v > low`` are returned as (indices, v) for their exp."""
-    n = a.shape[0]
-    idx = np.empty(n, dtype=np.int64)
-    vals = np.empty(n)
-    m = 0
-    for i in range(n):
-        v = max(a[i] - best, low)
-        a[i] = exp_low
-        if v > low:
-            idx[m] = i
-            vals[m] = v
-            m += 1
-    return idx[:m], vals[:m]
-
-
-@njit
-def _sum_rows(a: np.ndarray) -> np.ndarray:
-    """``a.sum(axis=0)`` of ``a`` (S, N): the rows added in order."""
+def _row_max(a: np.ndarray) -> np.ndarray:
+    """``a.max(axis=0)`` of ``a`` (S, N) without NaN: the best sub-pose of each cell."""
     out = a[0].copy()
     for s in range(1, a.shape[0]):
         for i in range(a.shape[1]):
-            out[i] += a[s, i]
+            out[i] = max(out[i], a[s, i])
+    return out
+
+
+@njit
+def _unclipped(a: np.ndarray, cell_max: np.ndarray, best: float, low: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The cells (columns of ``a`` (S, N)) with an entry ``v = a - best > low``
+    (``cell_max`` (N,) their maxima), and those entries ``v``, cell by cell, rows in order."""
+    n_sub, n = a.shape
+    cells = np.empty(n, dtype=np.int64)
+    vals = np.empty(n * n_sub)
+    n_cells = m = 0
+    for i in range(n):
+        if max(cell_max[i] - best, low) > low:
+            cells[n_cells] = i
+            n_cells += 1
+            for s in range(n_sub):
+                v = max(a[s, i] - best, low)
+                if v > low:
+                    vals[m] = v
+                    m += 1
+    return cells[:n_cells], vals[:m]
+
+
+@njit
+def _sub_pose_sums(a: np.ndarray, cells: np.ndarray, best: float, low: float, exp_low: float,
+                   exps: np.ndarray) -> np.ndarray:
+    """Per column of ``a`` (S, N), ``sum_s exp(max(a[s] - best, low))`` added row after row
+    (as ``a.sum(axis=0)`` adds rows), with ``exp_low`` for the clipped entries and ``exps``
+    for the others, in :func:`_unclipped`'s order (``cells``: the columns that have any)."""
+    n_sub, n = a.shape
+    const = exp_low                         # a column with every entry clipped
+    for _ in range(1, n_sub):
+        const += exp_low
+    out = np.full(n, const)
+    m = 0
+    for i in cells:
+        acc = 0.0
+        for s in range(n_sub):
+            e = exp_low
+            if max(a[s, i] - best, low) > low:
+                e = exps[m]
+                m += 1
+            acc = e if s == 0 else acc + e
+        out[i] = acc
     return out

@@ -78,6 +78,7 @@ class EpisodeGate:
         self.free = False
         self.resend_at = math.inf
         self.t0 = math.nan               # start of the running episode (sim time)
+        self.held_at = math.nan          # wall time the held instant's readings went out
 
     @property
     def holding(self) -> bool:
@@ -118,17 +119,23 @@ class EpisodeGate:
         if self.lockstep and not self.free and self.state == 'run' and self.holds_at(t):
             self.t, self.state, self.deadline = t, 'command', now + self.command_timeout
             self.resend_at = now + self.resend_period
+            self.held_at = now
 
     def on_progress(self, episode: int, version: int) -> None:
         """The learner reported ``episode`` (``version`` = its parameter version)."""
         self.learned = (episode, version)
 
-    def on_command(self, stamp: float | None) -> None:
-        """A command arrived, decided on readings at sim time ``stamp`` (None: unstamped)."""
+    def on_command(self, stamp: float | None, now: float = math.nan) -> float | None:
+        """A command arrived at wall time ``now``, decided on readings at sim time ``stamp``
+        (None: unstamped). Returns the sensor-to-command round trip [wall s] when it answers
+        the instant the clock is held at (from the first publication of that instant's
+        readings; NaN without ``now``), else None."""
         if stamp is None or stamp >= self.t - _TOL:
             self.free = False
             if self.state == 'command':
                 self.state = 'run'
+                return now - self.held_at
+        return None
 
     @property
     def version(self) -> int:

@@ -24,7 +24,8 @@ import numpy as np
 from cr_sim.core.geometry import TWO_PI, disc_gap, wrap_angle
 from cr_sim.core.robot import clamp_wheel, integrate_arc
 
-__all__ = ['HAVE_NUMBA', 'njit', 'move', 'scan', 'scan_many', 'odometry_step']
+__all__ = ['HAVE_NUMBA', 'njit', 'move', 'hold', 'scan', 'scan_many', 'odometry_step',
+           'odometry']
 
 try:  # pragma: no cover - exercised by whichever branch is installed
     import numba
@@ -55,6 +56,16 @@ def odometry_step(x: float, y: float, th: float, v_left: float, v_right: float,
     :func:`~cr_sim.core.robot.wheels_to_twist` then :func:`~cr_sim.core.robot.integrate_arc`
     (theta not wrapped)."""
     return _arc(x, y, th, 0.5 * (v_left + v_right), (v_right - v_left) / wheel_base, dt)
+
+
+@njit
+def odometry(x: float, y: float, th: float, wheels: np.ndarray, wheel_base: float,
+             dt: float) -> tuple[float, float, float]:
+    """:func:`odometry_step` over the rows ``(v_left, v_right)`` of ``wheels`` (K, 2), oldest
+    first: the same operations as K calls of it."""
+    for s in range(wheels.shape[0]):
+        x, y, th = odometry_step(x, y, th, wheels[s, 0], wheels[s, 1], wheel_base, dt)
+    return x, y, th
 
 
 @njit
@@ -204,3 +215,46 @@ def scan_into(x: float, y: float, th: float, ir_angles: np.ndarray, targets_x: n
             if m >= TWO_PI:
                 m = 0.0
             out[j] = math.pi - m
+
+
+@njit
+def hold(x: float, y: float, th: float, touching: bool, k: int, k_max: int, u_left: float,
+         u_right: float, n: int, v_max: float, wheel_base: float, dt: float, radius: float,
+         boxes: tuple, half: float, tol: float, n_bisect: int, dest_x: float, dest_y: float,
+         goal_r2: float, wheels: np.ndarray
+         ) -> tuple[float, float, float, bool, int, int, bool, bool]:
+    """Up to ``n`` (>= 1) steps of :func:`move` under the same command, from step count ``k``,
+    stopping after the first step that begins a contact, reaches the goal (the centre within
+    ``sqrt(goal_r2)`` of ``(dest_x, dest_y)``) or reaches step ``k_max``: the steps of
+    :meth:`cr_sim.core.sim.Simulator.step` without a return to Python between them.
+
+    Returns
+    -------
+    x, y, theta : float
+        End pose.
+    touching : bool
+        Of the last step.
+    k : int
+        Step count after the last step.
+    steps : int
+        Steps done; their executed ``(v_left, v_right)`` are written to ``wheels[:steps]``.
+    collision, reached : bool
+        Of the last step: a new contact began, the goal is reached.
+    """
+    steps = 0
+    collision = reached = False
+    while steps < n:
+        before = touching
+        x, y, th, vl, vr, _blocked, touching = move(x, y, th, u_left, u_right, v_max,
+                                                    wheel_base, dt, radius, boxes, half, tol,
+                                                    n_bisect)
+        wheels[steps, 0] = vl
+        wheels[steps, 1] = vr
+        steps += 1
+        k += 1
+        collision = touching and not before
+        dx, dy = x - dest_x, y - dest_y
+        reached = dx * dx + dy * dy <= goal_r2
+        if collision or reached or k >= k_max:
+            break
+    return x, y, th, touching, k, steps, collision, reached

@@ -202,17 +202,22 @@ class StepResult:
         The robot centre is within ``goal_radius`` of the destination (episode over).
     timeout : bool
         ``time_limit`` reached without reaching the destination (episode over).
+    steps : int
+        Simulator steps it covers (:meth:`Simulator.hold`; 1 for :meth:`Simulator.step`).
     """
 
-    __slots__ = ('t', 'reward', 'collision', 'reached', 'timeout', '_sim', '_tick', '_obs')
+    __slots__ = ('t', 'reward', 'collision', 'reached', 'timeout', 'steps', '_sim', '_tick',
+                 '_obs')
 
     def __init__(self, t: float, reward: float, collision: bool, reached: bool, timeout: bool,
-                 sim: Simulator, tick: int, obs: Observation | None = None) -> None:
+                 sim: Simulator, tick: int, obs: Observation | None = None,
+                 steps: int = 1) -> None:
         self.t = t
         self.reward = reward
         self.collision = collision
         self.reached = reached
         self.timeout = timeout
+        self.steps = steps
         self._sim = sim
         self._tick = tick
         self._obs = obs
@@ -306,6 +311,7 @@ class Simulator:
                                        np.full(len(self._targets), sig_b)])
         self._no_noise = np.zeros(self._n_rays)
 
+        self._held = np.empty((1, 2))          # executed wheels of the steps of hold()
         self._wander = WanderPolicy(params.wander, self._ir_angles, rng)
         self._tick = 0
         start = arena.starts[0]
@@ -472,19 +478,45 @@ class Simulator:
         RuntimeError
             If the episode is over (call :meth:`reset`).
         """
+        res = self._advance(u, 1)
+        if observe:
+            res._obs = self.observe()
+        return res
+
+    def hold(self, u: ArrayLike, n: int) -> tuple[StepResult, np.ndarray]:
+        """:meth:`step` with the same command up to ``n`` (>= 1) times, stopping after the
+        first step with a reward (a new contact, the goal) or the end of the episode: the same
+        results as those calls of :meth:`step`, without a return to Python per step.
+
+        Returns
+        -------
+        StepResult
+            Of the last step done.
+        np.ndarray, shape (steps, 2)
+            Executed ``(v_left, v_right)`` of each step done [m/s] (a view, valid until the
+            next call).
+        """
+        res = self._advance(u, n)
+        return res, self._held[:res.steps]
+
+    def _advance(self, u: ArrayLike, n: int) -> StepResult:
         if self._done:
             raise RuntimeError('the episode is over (reached or timeout): call reset()')
-        before = self._touching
         if type(u) is np.ndarray and u.shape == (2,) and u.dtype.kind == 'f':
             u_left, u_right = u.tolist()                   # the clamp is in the kernel
         else:
             u_left, u_right = clamp_wheels(u, self._vmax)  # any other input: checked here
-        self._move(u_left, u_right)
-        self._k += 1
-        self._tick += 1
-        collision = bool(self._touching and not before)
-        dx, dy = self._x - self._dest[0], self._y - self._dest[1]
-        reached = dx * dx + dy * dy <= self._goal_r2      # the centre within goal_radius
+        if n > len(self._held):
+            self._held = np.empty((n, 2))
+        # kernels.hold: _move until a new contact (collision), the centre within goal_radius
+        # (reached) or the time limit
+        (self._x, self._y, self._th, self._touching, self._k, steps, collision,
+         reached) = kernels.hold(
+            self._x, self._y, self._th, self._touching, self._k, self._k_max, u_left, u_right,
+            n, self._vmax, self._b, self._dt, self._r, self._kernel_boxes, self._half,
+            self._tol, _N_BISECT, self._dest[0], self._dest[1], self._goal_r2, self._held)
+        self._wl, self._wr = self._held[steps - 1].tolist()
+        self._tick += steps
         timeout = (not reached) and self._k >= self._k_max
         reward = 0.0
         if collision:
@@ -493,7 +525,7 @@ class Simulator:
             reward += self._reward_goal
         self._done = reached or timeout
         return StepResult(self._k * self._dt, reward, collision, reached, timeout, self,
-                          self._tick, self.observe() if observe else None)
+                          self._tick, steps=steps)
 
     # --------------------------------------------------------------------------- sensing
     def _draw_noise(self) -> np.ndarray:
