@@ -125,6 +125,21 @@ def test_normalised_selection_hand_computed():
         selection_probs(v, [0.9] * 3, 1.0, rule='greedy')
 
 
+def test_epsilon_soft_selection_keeps_every_available_module_acting():
+    v, g = [1.0, 0.0, -1.0], [0.9, 0.8, 0.5]
+    greedy = selection_probs(v, g, 50.0, rule='normalized')
+    assert greedy[1] < 1e-20                          # beta = 50: the best module only
+    soft = selection_probs(v, g, 50.0, rule='normalized', explore=0.3)
+    assert soft == pytest.approx(0.7 * greedy + 0.1)  # (1 - eps) Pr + eps / 3
+    # unavailable modules stay at 0; epsilon is spread over the available ones
+    soft = selection_probs(v, g, 50.0, [True, True, False], 'normalized', explore=0.3)
+    assert soft[2] == 0.0 and soft[1] == pytest.approx(0.15) and soft.sum() == pytest.approx(1)
+    # epsilon = 0 is the rule bit for bit (the paper preset)
+    assert selection_probs(v, g, 2.0, explore=0.0).tolist() == selection_probs(v, g, 2.0).tolist()
+    with pytest.raises(Exception, match='arbiter.explore'):
+        load_clis_params(overrides={'arbiter.explore': 1.5})
+
+
 # ------------------------------------------------------------------------------ steps
 
 
@@ -138,6 +153,36 @@ def test_feature_normalised_steps_move_the_value_by_alpha_delta():
         w, delta, _ = td_lambda_is(np.zeros(2), b, [1.0], [1.0], 0.9, 0.0,
                                    step_sizes(0.2, b, 'features'))
         assert float(w @ b[0]) == pytest.approx(0.2 * delta[0])
+
+
+def test_bounded_steps_keep_every_value_move_within_alpha_delta():
+    # a trace of five "goal not visible" states (one-hot, b.b = 1), then a spread RBF state
+    # (b.b = 0.27) that reaches the goal: alpha / (b.b) alone moves V(not visible) by 12x alpha
+    # delta (the divergence of View alone, docs/results.md); bounded keeps every move <= alpha
+    blind, spread = np.eye(4)[3], np.array([0.3, 0.3, 0.3, 0.0])
+    B = np.array([blind] * 5 + [spread])  # noqa: N806
+    r, ones = np.r_[np.zeros(5), 1.0], np.ones(6)
+    moves = {}
+    for td in (td_retrace, td_lambda_is):
+        for norm in ('features', 'bounded'):
+            cap = 0.1 if norm == 'bounded' else None
+            w, delta, _ = td(np.zeros(4), B, r, ones, 0.95, 0.9, step_sizes(0.1, B, norm),
+                             cap=cap)
+            assert delta.tolist() == [0.0] * 5 + [1.0]        # only the last step updates
+            moves[td, norm] = np.abs(B @ w).max()
+        assert moves[td, 'features'] > 1.0
+        assert moves[td, 'bounded'] == pytest.approx(0.1)
+    # without a trace (lambda = 0) on a state of the largest mass, bounded is the NLMS step
+    B1 = np.array([spread, spread])  # noqa: N806
+    for norm in ('features', 'bounded'):
+        w, _, _ = td_retrace(np.zeros(4), B1, [0.0, 1.0], [1.0, 1.0], 0.9, 0.0,
+                             step_sizes(0.1, B1, norm), cap=0.1 if norm == 'bounded' else None)
+        assert float(w @ spread) == pytest.approx(0.1)
+    assert step_sizes(0.1, B1, 'bounded') == pytest.approx(step_sizes(0.1, B1, 'features'))
+    with pytest.raises(ValueError, match='step_norm'):
+        step_sizes(0.1, B1, 'autostep')
+    with pytest.raises(Exception, match='learner.step_norm'):
+        load_clis_params(overrides={'learner.step_norm': 'autostep'})
 
 
 # ------------------------------------------------------------------------------ presets

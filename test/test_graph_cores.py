@@ -88,7 +88,7 @@ def selector(mode: str = 'episode', beta: float = 1.0, seed: int = 0) -> Selecto
     return Selector(['innate', 'view', 'place'], [0.9, 0.8, 0.7], [0.6, 0.3, 0.125],
                     [0.25, 0.5, 1.2],
                     ArbiterParams(selection=mode, stale_periods=1.5, start_timeout=0.5,
-                                  rule='paper', scale_min=0.1), beta,
+                                  rule='paper', scale_min=0.1, explore=0.0), beta,
                     np.random.default_rng(seed))
 
 

@@ -67,7 +67,9 @@ class LearnerParams:
     step_norm: str = param(choices=STEP_NORMS,
                            doc="'none' = alpha as given; 'features' = alpha / (b . b) per step "
                                '(normalised LMS: each step moves V and the mean at x by alpha '
-                               'of its error, whatever the feature mass)')
+                               "of its error, whatever the feature mass); 'bounded' = "
+                               "'features' with each TD step bounded so that no value of the "
+                               "episode's states moves by more than alpha |delta|")
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,11 @@ Beyond the paper (``clis.yaml`` section ``learner``, :mod:`~clis_learner.core.up
 the selection mixture ``sum_j Pr(j | x) pi_j`` on every step (on-policy steps too);
 ``value_update = retrace`` replaces (8) in step 4 and ``policy_update = offpac`` replaces (9)
 in step 5 by per-decision truncated corrections; ``step_norm = features`` divides the step
-sizes of both by the feature mass ``b . b``; ``imitation > 0`` adds behaviour cloning of the
-executed actions where their return beat V_i (CRAIL; self-imitation) to step 5;
+sizes of both by the feature mass ``b . b`` (``bounded``: and bounds each value step so
+that no value of the episode's states moves by more than alpha times the TD error, Dabney &
+Barto 2012, :func:`~clis_learner.core.updates.bounded_step`); ``imitation > 0`` adds
+behaviour cloning of the executed actions where their return beat V_i (CRAIL; self-imitation)
+to step 5;
 ``max_mean_step > 0`` bounds the change of the policy mean at the episode's states (a trust
 region).
 
@@ -224,7 +227,8 @@ class Learner:
         gammas = [mod.gamma for mod in self.modules]
         rows = values[:1] if self.arbiter.selection == 'episode' else values
         probs = np.array([selection_probs(v, gammas, self.beta, None, self.arbiter.rule,
-                                          self.arbiter.scale_min) for v in rows])
+                                          self.arbiter.scale_min, self.arbiter.explore)
+                          for v in rows])
         return pi, probs[0] if self.arbiter.selection == 'episode' else probs
 
     # ------------------------------------------------------------------ step 4-5
@@ -241,14 +245,17 @@ class Learner:
         v_before = rp.B @ m.w
         alpha = (m.value_params.alpha if prm.step_norm == 'none'
                  else step_sizes(m.value_params.alpha, rp.B, prm.step_norm))
+        # bounded: no value of the episode's states moves by more than alpha |delta| per step
+        # (updates.bounded_step: Dabney & Barto 2012's bound over the episode's states)
+        cap = m.value_params.alpha if prm.step_norm == 'bounded' else None
         if prm.value_update == 'retrace':
             # Retrace(lambda) / V-trace: per-decision truncated weights (updates.td_retrace)
             w_new, delta, c = td_retrace(m.w, rp.B, rp.r, rp.rho, m.gamma, prm.lambda_,
-                                         alpha, prm.rho_bar)
+                                         alpha, prm.rho_bar, cap)
         else:
             # (8) TD(lambda) with importance sampling
             w_new, delta, c = td_lambda_is(m.w, rp.B, rp.r, rp.rho, m.gamma, prm.lambda_,
-                                           alpha)
+                                           alpha, cap)
         grad_norm = 0.0
         W_new, sigma_new = m.W, m.sigma  # noqa: N806
         if m.learned:
@@ -262,7 +269,7 @@ class Learner:
             if prm.imitation > 0.0:
                 # CRAIL / self-imitation: clone u_l where G_l beat V_i(x_l) (updates module)
                 g = g + imitation_weights(v_before, rp.r, m.gamma, prm.imitation)
-            if prm.step_norm == 'features':
+            if prm.step_norm != 'none':
                 g = g / np.maximum(np.einsum('ln,ln->l', rp.B, rp.B), MASS_MIN)
             d_w, d_sigma = m.policy.weighted_scores(rp.B, rp.U, g)
             if self.params.policy_step == 'scaled':

@@ -188,7 +188,8 @@ def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -
                      for m in agent.modules]
             arb = agent.params.arbiter
             probs = selection_probs(agent.values(feats), agent.gammas,
-                                    agent.params.common.beta, None, arb.rule, arb.scale_min)
+                                    agent.params.common.beta, None, arb.rule, arb.scale_min,
+                                    arb.explore)
             p_all[iy, ix] = probs
     loc.reset()
     return {'x': xs.tolist(), 'y': ys.tolist(), 'p': p_all[:, :, i_place].tolist(),

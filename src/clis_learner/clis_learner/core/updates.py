@@ -37,12 +37,12 @@ from numpy.typing import ArrayLike
 __all__ = ['C_MAX', 'gamma_i', 'importance_products', 'td_lambda_is', 'pg_weights',
            'policy_gradient_is', 'VALUE_UPDATES', 'POLICY_UPDATES', 'STEP_NORMS',
            'step_sizes', 'td_retrace', 'vtrace_targets', 'offpac_weights',
-           'discounted_returns', 'imitation_weights']
+           'discounted_returns', 'imitation_weights', 'bounded_step']
 
 #: ``learner.value_update``, ``learner.policy_update``, ``learner.step_norm``.
 VALUE_UPDATES = ('paper', 'retrace')
 POLICY_UPDATES = ('paper', 'offpac')
-STEP_NORMS = ('none', 'features')
+STEP_NORMS = ('none', 'features', 'bounded')
 #: Smallest feature mass ``b . b`` a normalised step divides by (a state with no feature on).
 MASS_MIN = 1e-3
 
@@ -68,8 +68,8 @@ def importance_products(rho: ArrayLike) -> np.ndarray:
 
 
 def td_lambda_is(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # noqa: N803
-                 gamma_i: float, lambda_: float, alpha: float | ArrayLike
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 gamma_i: float, lambda_: float, alpha: float | ArrayLike,
+                 cap: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """TD(lambda) with importance sampling over one episode, eq. (8), online.
 
     For ``l = 0 .. L-1`` (module docstring for the indexing)::
@@ -95,6 +95,9 @@ def td_lambda_is(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # no
         Discount per step (11), trace decay.
     alpha : float or array_like, shape (L,)
         Step size, or one per step (:func:`step_sizes`, beyond the paper).
+    cap : float, optional
+        Beyond the paper: bound every step so that no value of the episode's states moves by
+        more than ``cap`` times the TD error (:func:`bounded_step`); None = the paper's.
 
     Returns
     -------
@@ -114,16 +117,18 @@ def td_lambda_is(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # no
     alpha_l = np.ascontiguousarray(np.broadcast_to(np.asarray(alpha, dtype=np.float64),
                                                    (n_steps,)))
     delta = _td_lambda_is_steps(w, np.ascontiguousarray(B), np.asarray(r, dtype=np.float64),
-                                c, decay, alpha_l, float(gamma_i))
+                                c, decay, alpha_l, float(gamma_i),
+                                0.0 if cap is None else float(cap))
     return w, delta, c
 
 
 @njit
 def _td_lambda_is_steps(w: np.ndarray, B: np.ndarray, r: np.ndarray,  # noqa: N803
                         c: np.ndarray, decay: np.ndarray, alpha: np.ndarray,
-                        gamma_i: float) -> np.ndarray:
+                        gamma_i: float, cap: float) -> np.ndarray:
     """The steps of :func:`td_lambda_is`, compiled: ``w`` updated in place, the TD errors
-    returned. ``np.dot`` is the BLAS dot product numpy's ``@`` calls (same results, tested)."""
+    returned. ``np.dot`` is the BLAS dot product numpy's ``@`` calls (same results, tested).
+    ``cap > 0``: each step bounded by :func:`bounded_step` (0: the paper's step)."""
     n_steps, n = B.shape
     e = np.zeros(n)
     delta = np.empty(n_steps)
@@ -134,10 +139,18 @@ def _td_lambda_is_steps(w: np.ndarray, B: np.ndarray, r: np.ndarray,  # noqa: N8
         d = r[l] + gamma_i * c[l] * v_next - v
         # (8) e_i <- lambda_i gamma_i rho~_i e_i + c_i b_i(x)
         # (8) w_i <- w_i + alpha_i delta_i e_i
-        step = alpha[l] * d
-        for j in range(n):
-            e[j] = e[j] * decay[l] + c[l] * B[l, j]
-            w[j] += step * e[j]
+        if cap > 0.0:
+            for j in range(n):
+                e[j] = e[j] * decay[l] + c[l] * B[l, j]
+            # bounded: no value of the episode's states moves by more than cap |delta|
+            step = bounded_step(alpha[l], cap, B, e) * d
+            for j in range(n):
+                w[j] += step * e[j]
+        else:
+            step = alpha[l] * d
+            for j in range(n):
+                e[j] = e[j] * decay[l] + c[l] * B[l, j]
+                w[j] += step * e[j]
         delta[l] = d
     return delta
 
@@ -193,7 +206,8 @@ def policy_gradient_is(scores: ArrayLike, r: ArrayLike, rho: ArrayLike, gamma_i:
 
 
 def step_sizes(alpha: float, B: ArrayLike, norm: str) -> np.ndarray:  # noqa: N803
-    """Step size of each step: ``alpha`` (``none``), or ``alpha / (b_l . b_l)`` (``features``).
+    """Step size of each step: ``alpha`` (``none``), or ``alpha / (b_l . b_l)`` (``features``,
+    and ``bounded`` before :func:`bounded_step`).
 
     Normalised LMS: with ``alpha / (b . b)`` a step ``w <- w + alpha delta b / (b . b)`` moves
     ``V(x_l) = w . b_l`` by exactly ``alpha delta``, whether the features are a concentrated
@@ -205,7 +219,7 @@ def step_sizes(alpha: float, B: ArrayLike, norm: str) -> np.ndarray:  # noqa: N8
     alpha : float
     B : array_like, shape (L, n)
     norm : str
-        ``none`` or ``features``.
+        ``none``, ``features`` or ``bounded``.
 
     Returns
     -------
@@ -214,14 +228,55 @@ def step_sizes(alpha: float, B: ArrayLike, norm: str) -> np.ndarray:  # noqa: N8
     B = np.asarray(B, dtype=np.float64)  # noqa: N806
     if norm == 'none':
         return np.full(B.shape[0], float(alpha))
-    if norm != 'features':
+    if norm not in STEP_NORMS:
         raise ValueError(f'unknown step_norm {norm!r}: choose from {", ".join(STEP_NORMS)}')
     return alpha / np.maximum(np.einsum('ln,ln->l', B, B), MASS_MIN)
 
 
+@njit
+def bounded_step(alpha_l: float, cap: float, B: np.ndarray, e: np.ndarray) -> float:  # noqa: N803
+    """The step of a TD update along the trace ``e``, bounded so that the value of no state of
+    the episode moves by more than ``cap`` times the TD error (``step_norm = bounded``).
+
+    ``w <- w + a delta e`` moves ``V(x_k) = w . b_k`` by ``a delta (e . b_k)``. With the
+    normalised step ``a = alpha / (b_l . b_l)`` alone (normalised LMS) and a trace, that is up
+    to ``alpha delta (e . b_k) / (b_l . b_l)``: many times ``alpha delta`` when the trace holds
+    states of larger feature mass than ``x_l`` (a robot that saw the goal for a while, then a
+    spread RBF state: ``b . b`` 1 against 0.1), which overshoots the TD error and diverges
+    (docs/results.md, issue 9: View alone, |V| up to 1e12). Hence::
+
+        a = min(alpha_l, cap / max_k |e . b_k|)        k over the episode's states
+
+    so ``|Delta V(x_k)| <= cap |delta|`` at every visited state, the current one included. It
+    is the overshoot bound of Dabney & Barto (2012, "Adaptive step-size for online temporal
+    difference learning": ``a <= 1 / |e . (gamma b' - b)|``, no reversal of the current TD
+    error) taken over every state of the episode rather than the current transition, with
+    ``cap = alpha`` the normalised-LMS move; without a trace (``e = b_l``) and with
+    ``b_l . b_l >= b_k . b_l`` it is ``alpha_l`` unchanged.
+
+    Parameters
+    ----------
+    alpha_l : float
+        The unbounded step of this step (:func:`step_sizes`).
+    cap : float
+        Largest move of a value per unit TD error (``alpha``).
+    B : np.ndarray, shape (L, n)
+        Features of the episode's states (C-contiguous float64: compiled).
+    e : np.ndarray, shape (n,)
+        The trace after this step's features were added.
+
+    Returns
+    -------
+    float
+    """
+    # Dabney & Barto 2012 bound over the episode's states: max_k |a e . b_k| <= cap
+    move = np.abs(np.dot(B, e)).max()
+    return min(alpha_l, cap / max(move, MASS_MIN))
+
+
 def td_retrace(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # noqa: N803
-               gamma_i: float, lambda_: float, alpha: ArrayLike, rho_bar: float = 1.0
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               gamma_i: float, lambda_: float, alpha: ArrayLike, rho_bar: float = 1.0,
+               cap: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """TD(lambda) with per-decision truncated importance weights, online (beyond the paper).
 
     Retrace(lambda) (Munos et al. 2016) for a state value, in the form of V-trace (Espeholt
@@ -247,6 +302,8 @@ def td_retrace(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # noqa
         Step size (per step: :func:`step_sizes`).
     rho_bar : float
         Truncation level of the ratios (1 in Retrace and V-trace).
+    cap : float, optional
+        Bound of the move of the episode's values per unit TD error (:func:`bounded_step`).
 
     Returns
     -------
@@ -257,7 +314,7 @@ def td_retrace(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # noqa
         ``min(rho_bar, rho_l)``, the importance weight of each step's TD error.
     """
     w = np.array(w, dtype=np.float64)
-    B = np.asarray(B, dtype=np.float64)  # noqa: N806
+    B = np.ascontiguousarray(B, dtype=np.float64)  # noqa: N806
     n_steps = B.shape[0]
     # Retrace / V-trace: rho_l and c_l = lambda min(c_bar, rho_l) truncated per step
     weight = np.minimum(np.asarray(rho, dtype=np.float64), rho_bar)
@@ -272,7 +329,8 @@ def td_retrace(w: ArrayLike, B: ArrayLike, r: ArrayLike, rho: ArrayLike,  # noqa
         if l:
             e *= gamma_i * lambda_ * wt[l - 1]     # trace cut by the previous step's ratio
         e += b
-        w += (alpha_l[l] * wt[l] * d) * e
+        a = alpha_l[l] if cap is None else bounded_step(alpha_l[l], cap, B, e)
+        w += (a * wt[l] * d) * e
         delta[l] = d
     return w, delta, weight
 

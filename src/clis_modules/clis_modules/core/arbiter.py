@@ -57,11 +57,13 @@ class ArbiterParams:
     rule: str = param(choices=('paper', 'normalized'),
                       doc="'paper' = (3) on (1 - gamma_i) V_i; 'normalized' = beta V_i / scale")
     scale_min: float = param(1e-6, 1e6, doc="smallest value scale of rule 'normalized'")
+    explore: float = param(0.0, 1.0, doc='epsilon of an epsilon-soft selection: Pr(i|x) = '
+                           '(1 - epsilon) rule + epsilon / (available modules); 0 = (3) alone')
 
 
 def selection_probs(values: ArrayLike, gammas: ArrayLike, beta: float,
                     available: ArrayLike | None = None, rule: str = 'paper',
-                    scale_min: float = 0.1) -> np.ndarray:
+                    scale_min: float = 0.1, explore: float = 0.0) -> np.ndarray:
     """Selection probabilities of eq. (3) (``rule = 'paper'``) or of values normalised by
     their scale (``'normalized'``, module docstring).
 
@@ -79,6 +81,11 @@ def selection_probs(values: ArrayLike, gammas: ArrayLike, beta: float,
         ``paper`` or ``normalized``.
     scale_min : float
         Smallest scale ``s`` of ``normalized``.
+    explore : float
+        Beyond the paper: ``epsilon`` of an epsilon-soft selection (Sutton & Barto 2018,
+        Sec. 5.4), ``(1 - epsilon) Pr(i|x) + epsilon / n`` over the ``n`` available modules:
+        every module keeps acting, and learning from its own actions, where the values favour
+        another (0: the rule alone, bit for bit).
 
     Returns
     -------
@@ -109,7 +116,11 @@ def selection_probs(values: ArrayLike, gammas: ArrayLike, beta: float,
     else:
         raise ValueError(f"unknown selection rule {rule!r}: 'paper' or 'normalized'")
     p = np.exp(z - z[ok].max())
-    return p / p.sum()
+    p /= p.sum()
+    if explore > 0.0:
+        # epsilon-soft: (1 - epsilon) Pr(i|x) + epsilon / n over the available modules
+        p = (1.0 - explore) * p + explore * ok / ok.sum()
+    return p
 
 
 class Arbiter:
@@ -134,6 +145,7 @@ class Arbiter:
     def __init__(self, params: ArbiterParams, beta: float, rng: np.random.Generator) -> None:
         self.mode = params.selection
         self.rule, self.scale_min = params.rule, params.scale_min
+        self.explore = params.explore
         self.beta = float(beta)
         self.rng = rng
         self.current: int | None = None
@@ -141,7 +153,7 @@ class Arbiter:
 
     def _draw(self, values: ArrayLike, gammas: ArrayLike, available: ArrayLike | None) -> int:
         self.probs = selection_probs(values, gammas, self.beta, available, self.rule,
-                                     self.scale_min)
+                                     self.scale_min, self.explore)
         cdf = np.cumsum(self.probs)
         i = min(int(np.searchsorted(cdf, self.rng.random() * cdf[-1], side='right')),
                 len(cdf) - 1)
