@@ -49,11 +49,15 @@ import numpy as np
 __all__ = ['Child', 'GraphPlan', 'plan_graph', 'register', 'main', 'write_curve']
 
 EXIT_OK, EXIT_CHILD, EXIT_CONFIG, EXIT_STARTUP, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+#: ``clis run --realtime`` without a value: the SCHED_FIFO priority of the sensor-to-command
+#: path (low among real-time priorities: the kernel's interrupt threads run at 50)
+REALTIME_PRIORITY = 10
 EPILOG = """examples:
   clis run --condition async --episodes 300                 # as fast as the graph keeps up
   clis run --condition view --episodes 50 --speed 5 --out results/run/view
   clis run --condition async --episodes 300 --resume results/run/async/checkpoint.npz
   clis run --condition sync --episodes 100 --params my_overrides.yaml
+  sudo -E clis run --realtime ...  # sensor-to-command path under SCHED_FIFO (root or ulimit -r)
   ROS_DOMAIN_ID=7 clis run ...   # watch it: ros2 topic echo /arbiter/selection (same domain)
 """
 
@@ -116,8 +120,10 @@ class GraphPlan:
 
 def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str = '',
                arena: str = '', robot: str = 'sim', device: str = 'emulator',
-               record: str = '') -> GraphPlan:
-    """The nodes of ``condition``, with the parameters ``clis run`` gives each."""
+               record: str = '', realtime: int = 0) -> GraphPlan:
+    """The nodes of ``condition``, with the parameters ``clis run`` gives each;
+    ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
+    ``SCHED_FIFO`` at that priority (:func:`cr_sim.lifecycle.realtime`)."""
     from clis_modules.core.modules import condition_periods
 
     from clis_learner.core.config import load_clis_params
@@ -132,16 +138,18 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     plan.children.append(Child('learner', 'clis_learner', 'learner', {
         **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume},
         restart='resume'))
-    plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', dict(graph)))
+    control = {**graph, 'graph.realtime_priority': realtime} if realtime else graph
+    plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', dict(control)))
     for name in modules:
-        plan.children.append(Child(name, 'clis_modules', name, dict(graph)))
+        plan.children.append(Child(name, 'clis_modules', name, dict(control)))
     if robot == 'bridge':
         _plan_bridge(plan, seed, speed, arena, device)
         return plan
     plan.children.append(Child('sim', 'cr_sim', 'sim', {
         'node.seed': seed, 'node.arena_file': arena, 'node.speed_factor': float(speed),
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
-        'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods]},
+        'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
+        **({'node.realtime_priority': realtime} if realtime else {})},
         restart='never'))
     return plan
 
@@ -428,6 +436,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--record', type=Path, metavar='BAG',
                    help='record every topic of the run into this bag folder (MCAP, e.g. '
                         'bags/NAME; see clis bag info / replay / learn)')
+    p.add_argument('--realtime', type=int, nargs='?', const=REALTIME_PRIORITY, default=0,
+                   metavar='PRIO',
+                   help='run the sensor-to-command path (simulator, modules, arbiter; not the '
+                        f'learner) under SCHED_FIFO priority PRIO (1-99, default '
+                        f'{REALTIME_PRIORITY}): needs root, CAP_SYS_NICE or ulimit -r, else '
+                        'each node warns and runs with the default scheduling')
     p.add_argument('--quiet', action='store_true', help='no progress line')
     p.set_defaults(func=main)
 
@@ -458,6 +472,8 @@ def _check_args(args: argparse.Namespace) -> str | None:
                    'runs faster)'
     if args.time_limit < 0:
         return f'--time-limit {args.time_limit}: must be >= 0 minutes'
+    if not 0 <= args.realtime <= 99:
+        return f'--realtime {args.realtime}: must be in [1, 99] (SCHED_FIFO priority)'
     return None
 
 
@@ -478,7 +494,7 @@ def main(args: argparse.Namespace) -> int:
     plan = plan_graph(args.condition, args.seed, out, args.speed,
                       str(args.resume.resolve()) if args.resume else '', args.arena,
                       args.robot, args.device,
-                      str(args.record.resolve()) if args.record else '')
+                      str(args.record.resolve()) if args.record else '', args.realtime)
     tty = sys.stderr.isatty() and not args.quiet
 
     def say(text: str) -> None:

@@ -21,8 +21,9 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     from clis_modules.arbiter_node import ArbiterNode
     from clis_modules.module_node import ModuleNode
     from cr_sim.core.params import ConfigError
-    from cr_sim.lifecycle import settle_heap
+    from cr_sim.lifecycle import realtime, settle_heap
     from cr_sim.sim_node import SimNode, run
+    from cr_sim.trace import dump as dump_trace
     import rclpy
     from rclpy.clock import Clock, ClockType
     from rclpy.executors import SingleThreadedExecutor
@@ -70,6 +71,9 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     for node in [*nodes, monitor.node]:
         executor.add_node(node)
     settle_heap()
+    if nodes[-1].cfg.realtime_priority:          # one process: the learner's thread too
+        ok, said = realtime(nodes[-1].cfg.realtime_priority)
+        say(f'clis run: {said}')
     try:
         run(nodes[-1], executor)                 # the simulator is the plan's last child
     except KeyboardInterrupt:
@@ -87,6 +91,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
             node.destroy_node()
         monitor.node.destroy_node()
         rclpy.try_shutdown()
+        dump_trace('graph')
         signal.signal(signal.SIGINT, signal.default_int_handler)
     say(f'clis run: {"interrupted" if state["code"] else view.summary()}')
     return state['code']

@@ -41,6 +41,7 @@ from clis_modules.core.modules import arena_map, make_modules
 from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from clis_modules.module_node import END_EVENTS, LATCHED, PARAMS_QOS
 from cr_sim.core.params import ConfigError, dataclass, param
+from cr_sim.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.clock import Clock, ClockType
@@ -73,6 +74,8 @@ class LearnerNodeParams:
 
 class LearnerNode(GraphNode):
     """Thin glue around an :class:`~clis_learner.core.stream.EpisodeStream` (module docstring)."""
+
+    control_path = False                    # learns between episodes: never real-time
 
     def __init__(self) -> None:
         super().__init__('learner', 'learner_node', LearnerNodeParams, clis_cls=ClisParams)
@@ -197,6 +200,7 @@ class LearnerNode(GraphNode):
             self.get_logger().warning(
                 f'episode {self.stream.episode["index"]}: {", ".join(missing)} did not arrive '
                 f'within {self.cfg.close_timeout} s: learning from what did')
+        mark('learner_learn0')
         self._closed(self.stream.close())
         self.closer.cancel()
 
@@ -204,6 +208,7 @@ class LearnerNode(GraphNode):
 
     def _closed(self, closed: Closed) -> None:
         """After an episode: checkpoint, parameters, CSV row, progress (module docstring)."""
+        mark('learner_closed0', closed.t_end)
         if not closed.row['complete']:
             self.get_logger().warning(
                 f'episode {closed.episode}: the rewards received sum to '
@@ -218,6 +223,7 @@ class LearnerNode(GraphNode):
             if self.out is not None:
                 self._append_csv(closed.row)
         self._progress(closed.row, closed.t_end)
+        mark('learner_closed1', closed.t_end)
 
     def _publish_params(self, t: float) -> None:
         for m in self.modules:

@@ -140,6 +140,8 @@ class _Polled(CallbackGroup):
 class RecorderNode(GraphNode):
     """Raw subscriptions into a :class:`~clis_learner.core.bag.BagWriter` (module docstring)."""
 
+    control_path = False                    # records: never real-time
+
     def __init__(self) -> None:
         super().__init__('recorder', 'recorder', RecorderParams, clis_cls=ClisParams)
         path = Path(self.cfg.path or f'bags/record-{time.strftime("%Y%m%d-%H%M%S")}')

@@ -36,6 +36,7 @@ import time
 
 from cr_sim.core.params import dataclass, param
 from cr_sim.core.sim import load_sim_params
+from cr_sim.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 import numpy as np
@@ -151,6 +152,7 @@ class ArbiterNode(GraphNode):
         if not (np.all(np.isfinite(p.u)) and np.isfinite(p.value)):
             self.get_logger().error(f'ignored non-finite proposal of {p.module}')
             return
+        mark('arb_prop_' + p.module, p.t)
         if self.barrier is not None:
             if self._clock_sub is not None:
                 self.take_clock()                    # (may open the instant: _on_tick)
@@ -220,6 +222,7 @@ class ArbiterNode(GraphNode):
         msg = rconv.cmd_from_wheels(u_exec, self.wheel_base, t, self.cfg.base_frame,
                                     self.cfg.cmd_vel_stamped)
         self.pub_cmd.publish(msg)
+        mark('arb_cmd', t)
         self.sent = (msg, t, time.monotonic())
 
     def _publish(self, cmd: Command | None) -> None:

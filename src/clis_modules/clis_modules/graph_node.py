@@ -34,9 +34,10 @@ from typing import Any
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down, settle_heap
+from cr_sim.lifecycle import SHUTDOWN_RACES, realtime, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
+from cr_sim.trace import dump as dump_trace
 import rclpy
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType, JumpThreshold
@@ -68,6 +69,9 @@ class GraphParams:
                                     'proposals: the arbiter knows a module died this soon')
     housekeeping_period: float = param(0.001, 10.0, doc='[s wall] how often the parameter '
                                        'services and QoS-incompatibility events are served')
+    realtime_priority: int = param(0, 99, doc='SCHED_FIFO priority of the nodes on the '
+                                   'sensor-to-command path (modules, arbiter; not the learner); '
+                                   '0 = default scheduling. Fail-soft without the right to it')
 
     def proposal_qos(self, depth: int = STREAM_DEPTH) -> QoSProfile:
         """QoS of a module's proposals with this ``liveliness_lease``: see :func:`proposal_qos`."""
@@ -162,10 +166,15 @@ class GraphNode(Node):
 
     Attributes
     ----------
+    control_path : bool
+        Whether the node is on the sensor-to-command path (``graph.realtime_priority``
+        applies to it): the modules and the arbiter, not the learner nor the recorder.
     clis : ModuleSetParams or ClisParams
     graph : GraphParams
     cfg : the ``section_cls`` instance (None without a section)
     """
+
+    control_path = True
 
     def __init__(self, name: str, section: str | None = None, section_cls: type | None = None,
                  clis_cls: type = ModuleSetParams, **kwargs: Any) -> None:
@@ -272,6 +281,9 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
     executor = make_executor(node.graph.executor)
     executor.add_node(node)
     settle_heap()
+    if node.control_path and node.graph.realtime_priority:
+        ok, said = realtime(node.graph.realtime_priority)
+        (node.get_logger().info if ok else node.get_logger().warning)(said)
     profiler = start_profile()
     try:
         executor.spin()
@@ -281,6 +293,7 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
         reraise_unless_shut_down()          # a shutdown racing the executor is a clean stop
     finally:
         stop_profile(profiler, name)
+        dump_trace(name)
         close = getattr(node, 'close', None)
         if callable(close):
             close()

@@ -38,6 +38,7 @@ import time
 
 from cr_sim.core.params import ConfigError, dataclass, param
 from cr_sim.core.sim import load_sim_params
+from cr_sim.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
 import numpy as np
@@ -110,6 +111,8 @@ class ModuleNode(GraphNode):
         self.wheels: deque = deque(maxlen=2000)  # (stamp, v_left, v_right)
         self.wheels_t = -math.inf               # stamp of the last wheels reading used
         self.landmarks = [lm.name for lm in arena.landmarks]
+        self.trace_clock, self.trace_decide, self.trace_pub = (
+            f'{kind}_clock', f'{kind}_decide', f'{kind}_pub')
 
         self.pub = self.create_publisher(JointState, '~/proposal', self.graph.proposal_qos())
         self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
@@ -220,6 +223,7 @@ class ModuleNode(GraphNode):
             self._try_decide()
 
     def _on_clock(self, t: float) -> None:
+        mark(self.trace_clock, t)
         if self.align is not None and t >= self.align - _TOL:
             self.align = None
             self.timer.reset()                  # the timer's phase: t_0 + l tau_i
@@ -228,6 +232,11 @@ class ModuleNode(GraphNode):
         # (every instant then waited out the arbiter's lockstep timeout)
         if self.t0 is not None and t >= self.t0 - _TOL:
             self._mark_due(self._grid(t))
+        if not self.due:
+            # between its decisions the module takes the readings when the clock wakes it
+            # anyway (no wakeup of their own), so that a decision takes only its instant's
+            # instead of a period's worth (72 messages for the place module) on its path
+            self._take_readings()
 
     def _on_wall(self) -> None:
         now = time.monotonic()
@@ -353,10 +362,12 @@ class ModuleNode(GraphNode):
             if tw > self.wheels_t + _TOL:
                 self.decider.on_wheels(vl, vr, tw - self.wheels_t)
                 self.wheels_t = tw
+        mark(self.trace_decide, t)
         p = self.decider.decide(Percept(t, dest, d_o, lm))
         self.due, self.last_t, self.last_grid = False, t, self.due_t
         msg = conv.proposal_msg(p, self.now_s())
         self.pub.publish(msg)
+        mark(self.trace_pub, t)
         self.sent = (msg, time.monotonic())
         # display only: built only for a subscriber (RViz, Foxglove, a recorder), after the
         # proposal, which the arbiter waits for

@@ -1,9 +1,19 @@
-"""A node process's life: its heap settled before it spins, and a clean stop told from a crash.
+"""A node process's life: its heap settled before it spins, an opt-in real-time scheduling
+priority, and a clean stop told from a crash.
 
 Before spinning, a node moves the objects alive then (rclpy, numpy, numba and their modules,
 the node itself: ~75,000 objects) out of the garbage collector's reach (:func:`settle_heap`):
 a full collection otherwise walks them all, a pause of 0.1-0.5 s measured in a graph node,
 which lands on the decision path whenever it comes. Objects made later are collected as usual.
+
+Real-time priority (opt-in, :func:`realtime`; ``clis run --realtime``): the nodes on the
+sensor-to-command path (simulator, modules, arbiter; never the learner) may put every thread
+of their process (the executor's and Fast DDS's) under ``SCHED_FIFO``, so that a wakeup on
+that path takes a core at once from any normal process, however loaded the machine. Linux
+allows it to root, to a process with ``CAP_SYS_NICE``, or up to the ``rtprio`` limit
+(``ulimit -r``); without that right the node logs why and runs with the default scheduling
+(fail-soft). The kernel keeps 5% of each second for normal processes
+(``/proc/sys/kernel/sched_rt_runtime_us``), so a runaway node cannot lock the machine up.
 
 Ctrl-C or SIGTERM shuts the rclpy context down from a signal handler, possibly while the
 executor is building its wait set or taking a message. rclpy then raises from inside the
@@ -15,12 +25,14 @@ the context is still valid it is a real error.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 import gc
+import os
 
 import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['SHUTDOWN_RACES', 'RCLError', 'reraise_unless_shut_down', 'settle_heap']
+__all__ = ['SHUTDOWN_RACES', 'RCLError', 'realtime', 'reraise_unless_shut_down', 'settle_heap']
 
 RCLError = _rclpy.RCLError
 #: What the executor may raise when the context is shut down under it.
@@ -38,3 +50,54 @@ def settle_heap() -> None:
     collector's later passes skip it (``gc.freeze``, Python >= 3.7)."""
     gc.collect()
     gc.freeze()
+
+
+def _threads() -> list[int]:
+    """Thread ids of this process (Linux: ``/proc/self/task``; elsewhere this thread)."""
+    try:
+        return sorted(int(tid) for tid in os.listdir('/proc/self/task'))
+    except OSError:
+        return [0]
+
+
+def realtime(priority: int, threads: Iterable[int] | None = None,
+             setter: Callable[[int, int, object], None] | None = None) -> tuple[bool, str]:
+    """Put every thread of this process (``threads``: these) under ``SCHED_FIFO`` at
+    ``priority`` (1-99; 0 = leave the scheduling alone), fail-soft (module docstring).
+
+    Threads started later (by a thread under ``SCHED_FIFO``) inherit it.
+
+    Returns
+    -------
+    (bool, str)
+        Whether every thread got the priority, and a line for the log that says what was done
+        or why not (no right to it, no ``SCHED_FIFO`` on this system), and that the node runs
+        with the default scheduling then. Nothing is raised.
+    """
+    if priority <= 0:
+        return False, 'default scheduling (real-time priority off)'
+    policy = getattr(os, 'SCHED_FIFO', None)
+    setter = setter if setter is not None else getattr(os, 'sched_setscheduler', None)
+    if policy is None or setter is None:
+        return False, (f'real-time priority {priority} requested, but this system has no '
+                       'SCHED_FIFO: running with the default scheduling')
+    tids = list(threads) if threads is not None else _threads()
+    done = 0
+    for tid in tids:
+        try:
+            setter(tid, policy, os.sched_param(priority))
+            done += 1
+        except ProcessLookupError:          # a thread that ended meanwhile
+            continue
+        except (OSError, ValueError) as exc:
+            if done:                        # do not leave the process half real-time
+                for other in tids:
+                    try:
+                        setter(other, os.SCHED_OTHER, os.sched_param(0))
+                    except OSError:
+                        pass
+            why = ('not permitted: needs root, CAP_SYS_NICE or an rtprio limit (ulimit -r) '
+                   f'of at least {priority}' if isinstance(exc, PermissionError) else str(exc))
+            return False, (f'real-time priority {priority} (SCHED_FIFO) {why}: running with '
+                           'the default scheduling')
+    return True, f'real-time priority: SCHED_FIFO {priority} on {done} threads'

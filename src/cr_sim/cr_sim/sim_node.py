@@ -30,9 +30,11 @@ from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param,
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
 from cr_sim.interface import open_robot_interface
-from cr_sim.lifecycle import SHUTDOWN_RACES, reraise_unless_shut_down, settle_heap
+from cr_sim.lifecycle import SHUTDOWN_RACES, realtime, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
+from cr_sim.trace import dump as dump_trace
+from cr_sim.trace import mark
 
 START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
 #: Between the instants a lockstep holds at, callbacks (a reset, a command) are served every
@@ -63,6 +65,8 @@ class SimNodeParams:
                                                 "controller's decision periods); 0 = every tick")
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
+    realtime_priority: int = param(0, 99, doc='SCHED_FIFO priority of the node (every thread); '
+                                   '0 = default scheduling. Fail-soft without the right to it')
     round_trip_log: str = param(doc="lockstep: append 'sim_time round_trip_ms' of every held "
                                 "instant to this file ('' = none); p50/p99 are logged at exit")
 
@@ -129,6 +133,7 @@ class SimNode(Node):
 
     def _on_cmd(self, msg) -> None:
         stamp = conv.cmd_stamp(msg)
+        mark('sim_cmd', stamp)
         if self.gate.lockstep and stamp and stamp < self.t_start - 1e-6:
             return                  # in lockstep: a command decided in an earlier episode
         # Clamped in the core (NaN/inf -> 0, limit): a bad command never reaches the wheels.
@@ -243,7 +248,9 @@ class SimNode(Node):
             if self.pub_markers.get_subscription_count():
                 self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
                     self.sim.pose, self.params.robot.radius, t, self.cfg.map_frame)]))
+        mark('sim_pub0', t)
         self._resend()
+        mark('sim_pub1', t)
         self.gate.published(t, time.monotonic())
 
     def _resend(self) -> None:
@@ -300,6 +307,9 @@ def main(args: list[str] | None = None) -> None:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     settle_heap()
+    if node.cfg.realtime_priority:
+        ok, said = realtime(node.cfg.realtime_priority)
+        (node.get_logger().info if ok else node.get_logger().warning)(said)
     profiler = start_profile()
     try:
         run(node, executor)
@@ -309,6 +319,7 @@ def main(args: list[str] | None = None) -> None:
         reraise_unless_shut_down()          # a shutdown racing the executor is a clean stop
     finally:
         stop_profile(profiler, 'sim')
+        dump_trace('sim')
         node.destroy_node()
         rclpy.try_shutdown()
 
