@@ -23,7 +23,9 @@ processes, lockstep, every module timer firing) and observes it from this proces
   (``--real-time``: the robot's operating point, every node idle between instants);
 - the same run with ``--single-process`` (every node in one process and one executor);
 - the executors: the same run with every node on rclpy's EventsExecutor, and the CPU of an
-  idle module node (no ``/clock``) with the EventsExecutor and the SingleThreadedExecutor.
+  idle module node (no ``/clock``) with the EventsExecutor and the SingleThreadedExecutor;
+- the round trip with ``clis run --realtime`` (opt-in: simulator, modules and arbiter under
+  ``SCHED_FIFO``; the row says whether the nodes got it), as fast as it goes and at real time.
 
     python bench/bench_graph.py [--seconds 30] [--json FILE]
     python bench/bench_graph.py --cpu-only [--cpus 1]   # CPU per sim-second of the processes
@@ -80,7 +82,7 @@ def children(pid: int) -> dict[str, int]:
 
 
 def measure(seconds: float, single: bool, executor: str = 'single',
-            cpus: str = '', params: str = '', speed: float = 0.0) -> dict:
+            cpus: str = '', params: str = '', speed: float = 0.0, realtime: int = 0) -> dict:
     from geometry_msgs.msg import TwistStamped
     import rclpy
     from rosgraph_msgs.msg import Clock
@@ -93,6 +95,8 @@ def measure(seconds: float, single: bool, executor: str = 'single',
         cmd.append('--single-process')
     if speed > 0:
         cmd += ['--speed', str(speed)]
+    if realtime:
+        cmd += ['--realtime', str(realtime)]
     # the simulator logs the round trip of every held instant (readings out -> cmd_vel in)
     rtt_log = out / 'round_trips.txt'
     bench_params = out / 'bench.yaml'
@@ -166,7 +170,11 @@ def measure(seconds: float, single: bool, executor: str = 'single',
     gaps = np.diff([w for _, w in clock]) if len(clock) > 1 else np.zeros(0)
     steps = np.diff(sorted({round(t, 6) for t, _ in clock}))
     per_sim = {name: c / sim for name, c in used.items()} if sim > 0 else {}
-    return {'single_process': single, 'executor': executor, 'speed': speed, 'wall_s': wall,
+    logs = ''.join(f.read_text(errors='replace') for f in (out / 'logs').glob('*.log')) \
+        if (out / 'logs').is_dir() else ''
+    granted = logs.count('real-time priority: SCHED_FIFO')
+    return {'single_process': single, 'realtime': realtime, 'realtime_granted': granted,
+            'executor': executor, 'speed': speed, 'wall_s': wall,
             'sim_s': sim,
             'rtf': sim / wall, 'paused_s': float(gaps[gaps > 0.02].sum()),
             'load_avg_1min': load, 'cpus': cpus or 'all',
@@ -216,7 +224,15 @@ def seen(r: dict) -> str:
 
 def latency_line(r: dict) -> str:
     return (f'round trip at the simulator p50/p99 {rtt(r)} over {r["round_trips"]} instants, '
-            f'as a subscriber sees it {seen(r)}')
+            f'as a subscriber sees it {seen(r)} (load average {r["load_avg_1min"]:.1f})')
+
+
+def granted(r: dict) -> str:
+    """Whether ``--realtime`` took effect (the nodes that logged SCHED_FIFO)."""
+    if not r['realtime']:
+        return ''
+    return (f'SCHED_FIFO {r["realtime"]} on {r["realtime_granted"]} nodes' if
+            r['realtime_granted'] else 'SCHED_FIFO refused: default scheduling')
 
 
 def cpu_line(r: dict) -> str:
@@ -241,6 +257,9 @@ def main() -> int:
                     help='pin the graph to these cores (taskset -c LIST)')
     ap.add_argument('--params', default='', metavar='FILE',
                     help='a parameter file for clis run --params (with --cpu-only)')
+    ap.add_argument('--realtime', type=int, default=10, metavar='PRIO',
+                    help='also measure the round trip with clis run --realtime PRIO (the '
+                         'sensor-to-command path under SCHED_FIFO; 0 = not)')
     args = ap.parse_args()
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
@@ -257,6 +276,10 @@ def main() -> int:
     # the robot's operating point: sim time = wall time, every node idle between instants
     paced = {single: measure(args.real_time_seconds, single=single, cpus=args.cpus, speed=1.0)
              for single in (False, True)}
+    # opt-in: the sensor-to-command path under SCHED_FIFO (root, CAP_SYS_NICE or ulimit -r)
+    fifo = {speed: measure(args.seconds if speed == 0 else args.real_time_seconds,
+                           single=False, cpus=args.cpus, speed=speed, realtime=args.realtime)
+            for speed in ((0.0, 1.0) if args.realtime else ())}
     events, default = idle_cpu('events'), idle_cpu('single')
     for r in (multi, single, events_run):
         print(f'{"one process" if r["single_process"] else "processes  "} ({r["executor"]} '
@@ -269,6 +292,10 @@ def main() -> int:
     for alone, r in paced.items():
         print(f'{"one process" if alone else "processes  "} at real time (--real-time): '
               f'{latency_line(r)}')
+    for speed, r in fifo.items():
+        print(f'processes with --realtime {args.realtime} ({granted(r)}), '
+              f'{"at real time" if speed else "as fast as it goes"}: {latency_line(r)}'
+              + ('' if speed else f'; real-time factor {r["rtf"]:.1f}x'))
     print(f'idle module node CPU: EventsExecutor {events:.0f}%, SingleThreadedExecutor '
           f'{default:.0f}%')
     if args.json:
@@ -276,16 +303,28 @@ def main() -> int:
         Path(args.json).write_text(json.dumps({
             'processes': multi, 'single_process': single, 'events_executor': events_run,
             'real_time_processes': paced[False], 'real_time_single_process': paced[True],
+            'realtime_processes': fifo.get(0.0), 'realtime_real_time_processes': fifo.get(1.0),
             'idle_cpu_events': events, 'idle_cpu_single': default, 'rows': [
                 {'measure': 'Async graph real-time factor under sim time (lockstep, every '
                             'timer firing), processes | one process',
                  'value': f'{multi["rtf"]:.1f}x | {single["rtf"]:.1f}x',
                  'goal': '>= 20x (stretch 50x)'},
                 {'measure': 'sensor-to-cmd_vel round trip p50 / p99 at the simulator (readings '
-                            'out -> cmd_vel in), as fast as it goes: processes | one process',
+                            'out -> cmd_vel in), as fast as it goes: processes | one process '
+                            f'(load average {multi["load_avg_1min"]:.1f} | '
+                            f'{single["load_avg_1min"]:.1f})',
                  'value': f'{rtt(multi)} | {rtt(single)}', 'goal': 'p99 <= 5 ms'},
-                {'measure': 'the same at real time (--real-time): processes | one process',
+                {'measure': 'the same at real time (--real-time): processes | one process '
+                            f'(load {paced[False]["load_avg_1min"]:.1f} | '
+                            f'{paced[True]["load_avg_1min"]:.1f})',
                  'value': f'{rtt(paced[False])} | {rtt(paced[True])}', 'goal': 'p99 <= 5 ms'},
+                *([{'measure': f'the same with clis run --realtime {args.realtime} (opt-in: '
+                               'sim, modules, arbiter under SCHED_FIFO; '
+                               f'{granted(fifo[0.0])}), processes: as fast as it goes | at '
+                               f'real time (load {fifo[0.0]["load_avg_1min"]:.1f} | '
+                               f'{fifo[1.0]["load_avg_1min"]:.1f}); real-time factor',
+                    'value': f'{rtt(fifo[0.0])} | {rtt(fifo[1.0])}; {fifo[0.0]["rtf"]:.1f}x',
+                    'goal': 'p99 <= 5 ms'}] if fifo else []),
                 {'measure': 'readings to cmd_vel as a subscriber sees them (one more process), '
                             'as fast as it goes | at real time, processes',
                  'value': f'{seen(multi)} | {seen(paced[False])}'},

@@ -99,7 +99,7 @@ def load_marks(trace: Path) -> dict[str, dict[float, list[int]]]:
             w, e, t = line.split(' ')
             t = float(t)
             key = round(t, 6) if t == t else None
-            if e.startswith('gc'):
+            if e.startswith('gc') or e == 'wake':
                 e = f'{proc}:{e}'
             marks[e][key].append(int(w))
     return marks
@@ -173,6 +173,27 @@ def analyse(trace: Path, rtt_file: Path | None = None, worst: int = 12) -> str:
                 (d if k in due.split('+') else nd).append((c - first['sim_pub1'][t]) / 1e6)
         out.append(f'  {k}: {pct(d, 50):.2f}/{pct(d, 99):.2f} | '
                    f'{pct(nd, 50):.2f}/{pct(nd, 99):.2f}')
+    # each hop into the wakeup (the executor's wait returns) and the Python work after it
+    out.append('a hop = wakeup (the wait returns) + the executor up to the callback, ms p50/p99:')
+    for proc, event, start in [(k, f'{k}_clock', 'sim_pub1') for k in MODULES] + [
+            ('arbiter', 'arb_prop_*', '*_pub'), ('sim', 'sim_cmd', 'arb_cmd')]:
+        wakes = np.array(sorted(w for ws in m.get(f'{proc}:wake', {}).values() for w in ws))
+        if not wakes.size:
+            continue
+        a, b = [], []
+        for t, _, crit, *_ in rows:
+            ev = event.replace('*', crit)
+            st = start.replace('*', crit)
+            c, s0 = first.get(ev, {}).get(t), first.get(st, {}).get(t)
+            if c is None or s0 is None:
+                continue
+            i = np.searchsorted(wakes, c, side='right') - 1
+            if i < 0 or wakes[i] < s0:
+                continue                     # no wakeup between: it was awake already
+            a.append((wakes[i] - s0) / 1e6)
+            b.append((c - wakes[i]) / 1e6)
+        out.append(f'  {proc:8s} {event:12s} wakeup {pct(a, 50):.2f}/{pct(a, 99):.2f}, '
+                   f'executor {pct(b, 50):.2f}/{pct(b, 99):.2f} ({len(a)} of {len(rows)})')
     out.append(f'slowest {worst} instants (ms: ' + ', '.join(names) + '), overlapping events:')
     for t, due, crit, h, _ in sorted(rows, key=lambda r: -r[4])[:worst]:
         p0 = pub0[t]
