@@ -491,6 +491,9 @@ def main(args: argparse.Namespace) -> int:
               f'{out / "checkpoint.npz"}, or choose another --out', file=sys.stderr)
         return EXIT_CONFIG
     out.mkdir(parents=True, exist_ok=True)
+    # the graph's nodes (and this process's monitor) pass their data through shared memory
+    from clis_learner.ros_env import use_graph_profile
+    use_graph_profile()
     plan = plan_graph(args.condition, args.seed, out, args.speed,
                       str(args.resume.resolve()) if args.resume else '', args.arena,
                       args.robot, args.device,

@@ -280,7 +280,7 @@ def use_recorder_profile() -> None:
     loss when this process waits for a core) instead of the project's loopback profile; a
     profile of the user's own is kept."""
     current = os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE', '')
-    if Path(current).name == 'fastdds_loopback.xml':
+    if Path(current).name in ('fastdds_loopback.xml', 'fastdds_graph.xml'):
         ours = Path(current).with_name('fastdds_recorder.xml')
         if ours.is_file():
             os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(ours)

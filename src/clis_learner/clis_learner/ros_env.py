@@ -23,6 +23,8 @@ from cr_sim.core.params import config_dir
 
 PROFILE_VAR = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 PROFILE_NAME = 'fastdds_loopback.xml'
+#: The graph's variant (shared memory carries the user data): ``clis run`` loads it
+GRAPH_PROFILE_NAME = 'fastdds_graph.xml'
 #: Fast DDS maps domain d to UDP ports 7400 + 250 d (+ offsets); ids above ~100 collide with
 #: Linux ephemeral ports, so runs draw from this range.
 DOMAIN_RANGE = (1, 100)
@@ -98,6 +100,20 @@ def apply_ros_env(env: MutableMapping[str, str] | None = None, *, network: bool 
     return env
 
 
+def use_graph_profile(env: MutableMapping[str, str] | None = None) -> MutableMapping[str, str]:
+    """For the CLIS graph's nodes (``clis run``): load ``config/fastdds_graph.xml`` (the same
+    loopback-only rules, shared memory carrying the user data between the graph's processes)
+    instead of the project's loopback profile; a profile of the user's own (or none,
+    ``--network``) is kept. Returns ``env`` (default ``os.environ``)."""
+    env = os.environ if env is None else env
+    current = env.get(PROFILE_VAR, '')
+    if Path(current).name == PROFILE_NAME:
+        ours = Path(current).with_name(GRAPH_PROFILE_NAME)
+        if ours.is_file():
+            env[PROFILE_VAR] = str(ours)
+    return env
+
+
 def describe(env: MutableMapping[str, str] | None = None) -> dict[str, str]:
     """What is in force, for ``clis doctor`` and run headers."""
     env = os.environ if env is None else env
@@ -108,6 +124,6 @@ def describe(env: MutableMapping[str, str] | None = None) -> dict[str, str]:
         'ROS_DOMAIN_ID': env.get('ROS_DOMAIN_ID', '0 (unset)'),
         'ROS_AUTOMATIC_DISCOVERY_RANGE': env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '(default)'),
         'DDS profile': profile or '(none: Fast DDS defaults, all interfaces)',
-        'scope': ('loopback only' if profile.endswith(PROFILE_NAME)
+        'scope': ('loopback only' if profile.endswith((PROFILE_NAME, GRAPH_PROFILE_NAME))
                   else 'network (opted in or user profile)'),
     }

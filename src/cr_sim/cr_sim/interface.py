@@ -20,9 +20,10 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
                          wait_for_learner: bool) -> None:
     """Create the interface's publishers on ``node`` (``node.pub_clock``, ``pub_ir``,
     ``pub_camera``, ``pub_wheels``, ``pub_reward``, ``pub_episode``, ``pub_odom``,
-    ``pub_arena``, ``pub_markers``), subscribe ``cmd_vel`` to ``node._on_cmd``, serve
-    ``reset`` with ``node._on_reset``, follow ``learner/progress`` with ``node._on_progress``
-    if ``wait_for_learner``, and publish the arena's markers (latched) in ``map_frame``."""
+    ``pub_arena``, ``pub_markers``), subscribe ``cmd_vel`` to ``node._on_cmd``
+    (``node.sub_cmd``), serve ``reset`` with ``node._on_reset``, follow ``learner/progress``
+    with ``node._on_progress`` if ``wait_for_learner``, and publish the arena's markers
+    (latched) in ``map_frame``."""
     from std_srvs.srv import Trigger
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     node.pub_clock = node.create_publisher(conv.Clock, '/clock', 10)
@@ -37,7 +38,7 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
     node.pub_arena = node.create_publisher(conv.MarkerArray, 'arena', latched)
     node.pub_markers = node.create_publisher(conv.MarkerArray, 'markers', 10)
     cmd_type = conv.TwistStamped if cmd_vel_stamped else conv.Twist
-    node.create_subscription(cmd_type, 'cmd_vel', node._on_cmd, 10)
+    node.sub_cmd = node.create_subscription(cmd_type, 'cmd_vel', node._on_cmd, 10)
     node.create_service(Trigger, 'reset', node._on_reset)
     if wait_for_learner:
         node.create_subscription(conv.DiagnosticArray, 'learner/progress', node._on_progress,

@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 import rclpy
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -264,14 +265,53 @@ class SimNode(Node):
         return self._time_offset + self.sim.t
 
 
+class CommandWait:
+    """Wait for ``cmd_vel`` alone while lockstep holds the clock (the sensor-to-command path).
+
+    The executor rebuilds its wait set in Python at every wait (all the node's entities: a few
+    tenths of a millisecond here), right when the graph's nodes wake up for the instant just
+    published and need the cores, and again after the command arrives. This waits on a wait
+    set of the ``cmd_vel`` subscription alone and hands what it takes to the node's callback;
+    the executor still serves the rest (progress, ``reset``, parameters) whenever a wait ends
+    without a command. Only for a node that has its executor to itself (not
+    ``--single-process``, where the loop must serve every node).
+    """
+
+    def __init__(self, node: SimNode) -> None:
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+        self.node = node
+        self.sub = node.sub_cmd
+        self.wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
+
+    def wait(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` wall seconds for commands and take them all; whether one
+        came."""
+        came = False
+        try:
+            with self.sub.handle, self.node.context.handle:
+                self.wait_set.clear_entities()
+                self.wait_set.add_subscription(self.sub.handle)
+                self.wait_set.wait(int(timeout * 1e9))
+                while (taken := self.sub.handle.take_message(self.sub.msg_type,
+                                                             self.sub.raw)) is not None:
+                    came = True
+                    self.node._on_cmd(taken[0])
+        except InvalidHandle:                 # shutting down: the loop ends
+            pass
+        return came
+
+
 def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     """Pace the simulator at ``speed_factor`` x real time while serving callbacks."""
     period = node.dt / node.cfg.speed_factor if node.cfg.speed_factor > 0 else 0.0
     next_wall = time.monotonic()
     ticks = 0
+    fast = CommandWait(node) if list(executor.get_nodes()) == [node] else None
     while rclpy.ok():
         if node.holding:                  # the clock stands still (learner gate, lockstep)
-            executor.spin_once(timeout_sec=0.005)
+            if fast is None or node.gate.state != 'command' or not fast.wait(0.005):
+                executor.spin_once(timeout_sec=0.0 if fast is not None and
+                                   node.gate.state == 'command' else 0.005)
             node.check_hold()
             if period == 0:
                 next_wall = time.monotonic()
