@@ -70,19 +70,12 @@ class LearnerNodeParams:
     close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the records of an '
                                   'ended episode')
     close_grace: float = param(0.0, 10.0, doc='wall seconds to wait for records in flight')
-    nice: int = param(0, 19, doc="raise the learner process's nice value by this much (off "
-                      'the sensor-to-command path: the nodes on it go first); 0 = not')
 
 
 class LearnerNode(GraphNode):
     """Thin glue around an :class:`~clis_learner.core.stream.EpisodeStream` (module docstring)."""
 
     control_path = False                    # learns between episodes: never real-time
-
-    @property
-    def nice(self) -> int:
-        """How much lower the learner's priority is (``learner_node.nice``)."""
-        return self.cfg.nice
 
     def __init__(self) -> None:
         super().__init__('learner', 'learner_node', LearnerNodeParams, clis_cls=ClisParams)

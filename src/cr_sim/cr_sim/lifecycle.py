@@ -32,8 +32,7 @@ import os
 import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['SHUTDOWN_RACES', 'RCLError', 'lower_priority', 'realtime', 'reraise_unless_shut_down',
-           'settle_heap']
+__all__ = ['SHUTDOWN_RACES', 'RCLError', 'realtime', 'reraise_unless_shut_down', 'settle_heap']
 
 RCLError = _rclpy.RCLError
 #: What the executor may raise when the context is shut down under it.
@@ -103,20 +102,3 @@ def realtime(priority: int, threads: Iterable[int] | None = None,
                            'the default scheduling')
     return True, f'real-time priority: SCHED_FIFO {priority} on {done} threads'
 
-
-def lower_priority(nice: int, threads: Iterable[int] | None = None) -> str:
-    """Raise the nice value of every thread of this process (``threads``: these) by ``nice``
-    (0: leave it), for a node off the sensor-to-command path (the learner): when it competes
-    for a core with the nodes on that path, they go first. Any user may lower a priority; a
-    refusal is returned as a message, not raised."""
-    if nice <= 0:
-        return 'default priority'
-    done = 0
-    for tid in (list(threads) if threads is not None else _threads()):
-        try:
-            os.setpriority(os.PRIO_PROCESS, tid, min(19, os.getpriority(os.PRIO_PROCESS, tid)
-                                                     + nice))
-            done += 1
-        except OSError:                     # ended meanwhile, or not allowed
-            continue
-    return f'nice +{nice} on {done} threads (off the sensor-to-command path)'
