@@ -473,7 +473,7 @@ def _check_args(args: argparse.Namespace) -> str | None:
     if args.time_limit < 0:
         return f'--time-limit {args.time_limit}: must be >= 0 minutes'
     if not 0 <= args.realtime <= 99:
-        return f'--realtime {args.realtime}: must be in [1, 99] (SCHED_FIFO priority)'
+        return f'--realtime {args.realtime}: must be in [1, 99] (SCHED_FIFO priority; 0 = off)'
     return None
 
 
