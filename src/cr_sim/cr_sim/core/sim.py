@@ -442,6 +442,37 @@ class Simulator:
         self._k = 0
         k = 0
         # keep wandering while in the goal (the episode would be over at once); bounded
+        n_max = 10 * n + 1000
+        if self._obs_tick == self._tick and (k < n or (self._in_goal(self._x, self._y)
+                                                        and k < n_max)):
+            # the first tick reads the observation already made (no new noise)
+            u = self._wander.act(self.observe())
+            self._move(float(u[0]), float(u[1]))
+            self._tick += 1
+            k += 1
+        # the other ticks: observation (IR), WanderPolicy.act and _move compiled as one loop
+        w, wp = self._wander, self._wander.params
+        state = np.array((w._steer, w._turn, w._last_v))
+        (self._x, self._y, self._th, self._wl, self._wr, self._touching, k_end) = \
+            kernels.wander(
+                self._x, self._y, self._th, self._wl, self._wr, self._touching, k, n, n_max,
+                state, np.array((wp.speed, wp.turn_speed, wp.avoid_distance, wp.steer_sigma,
+                                 wp.steer_max)), w._front, w._left, w._right,
+                self._ir_angles, self._planes, self._r, self._ir_range, self._sigmas,
+                self._noisy, self._rng, self._noise_rng, self._vmax, self._b, self._dt,
+                self._kernel_boxes, self._half, self._tol, _N_BISECT, self._dest[0],
+                self._dest[1], self._goal_r2)
+        w._steer, w._turn, w._last_v = (float(v) for v in state)
+        self._tick += k_end - k
+        return self._x, self._y, self._th
+
+    def _run_wander_reference(self) -> tuple[float, float, float]:
+        """:meth:`_run_wander` as a Python loop of :meth:`observe`, ``WanderPolicy.act`` and
+        :meth:`_move` (the reference of the compiled loop, for the tests)."""
+        n = round(self.params.episode.wander_time / self._dt)
+        self._wander.reset()
+        self._k = 0
+        k = 0
         while k < n or (self._in_goal(self._x, self._y) and k < 10 * n + 1000):
             u = self._wander.act(self.observe())
             self._move(float(u[0]), float(u[1]))
