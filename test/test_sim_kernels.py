@@ -416,3 +416,36 @@ def test_wander_kernel_is_the_python_loop_bit_for_bit(world, noise):
         for sim in sims:                   # an episode's worth of driving in between
             sim.hold(u, n)
         assert state(sims[0]) == state(sims[1])
+
+
+def test_sensing_is_the_reference_bit_for_bit(world):
+    """Simulator.observe and Simulator.sense (one kernel with numpy's arctan2 loop, noise
+    drawn in blocks) give the readings of the code before them: per observation
+    standard_normal(n_rays) * sigmas, np.arctan2 then kernels.scan_into, d_o = min(ir)."""
+    params, arena = world
+    sim = Simulator(arena, params, np.random.default_rng(11))
+    ref_noise = np.random.default_rng(11).spawn(1)[0]
+    rng = np.random.default_rng(12)
+    sim.reset('A')
+    for step in range(3000):
+        noise = ref_noise.standard_normal(sim._n_rays) * sim._sigmas
+        x, y, th = sim._x, sim._y, sim._th
+        dx, dy = sim._targets_x - x, sim._targets_y - y
+        ir, bearing = kernels.scan(x, y, th, sim._ir_angles, sim._targets_x, sim._targets_y,
+                                   np.arctan2(dy, dx), sim._planes, sim._n_tall, sim._r,
+                                   sim._ir_range, noise, sim._noisy)
+        if step % 2:
+            obs = sim.observe()
+            dest, d_o, lm = sim.sense()
+        else:
+            dest, d_o, lm = sim.sense()
+            obs = sim.observe()
+        np.testing.assert_array_equal(obs.ir, ir)
+        np.testing.assert_array_equal(obs.landmark_bearings, bearing[1:])
+        np.testing.assert_array_equal(lm, bearing[1:])
+        assert d_o == obs.d_o == ir.min()
+        assert (math.isnan(dest) and math.isnan(bearing[0])) or dest == bearing[0]
+        assert (math.isnan(dest) and math.isnan(obs.dest_bearing)) or dest == obs.dest_bearing
+        res = sim.step(rng.uniform(-1.0, 1.0, 2))
+        if res.done:
+            sim.reset('random')       # observes: the next reference draw is its noise

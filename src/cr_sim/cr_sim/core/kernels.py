@@ -23,25 +23,10 @@ import numpy as np
 
 from cr_sim.core.geometry import TWO_PI, disc_gap, wrap_angle
 from cr_sim.core.robot import clamp_wheel, integrate_arc
+from cr_sim.core.ufunc_loops import HAVE_NUMBA, arctan2_into, njit
 
 __all__ = ['HAVE_NUMBA', 'njit', 'move', 'hold', 'scan', 'scan_into', 'scan_many', 'ir_into',
-           'odometry_step', 'odometry', 'wander']
-
-try:  # pragma: no cover - exercised by whichever branch is installed
-    import numba
-
-    HAVE_NUMBA = True
-
-    def njit(fn):
-        """Compile ``fn`` in nopython mode (cached on disk, no fast-math: IEEE semantics)."""
-        return numba.njit(cache=True, nogil=True)(fn)
-except ImportError:  # pragma: no cover
-    HAVE_NUMBA = False
-
-    def njit(fn):
-        """numba is not installed: run ``fn`` as plain Python (same results, slower)."""
-        return fn
-
+           'sense', 'odometry_step', 'odometry', 'wander']
 
 _disc_gap = njit(disc_gap)
 _arc = njit(integrate_arc)
@@ -224,6 +209,33 @@ def ir_into(x: float, y: float, th: float, ir_angles: np.ndarray, planes: np.nda
 
 
 @njit
+def sense(x: float, y: float, th: float, ir_angles: np.ndarray, targets_x: np.ndarray,
+          targets_y: np.ndarray, planes: np.ndarray, n_tall: int, radius: float,
+          ir_range: float, noise: np.ndarray, noisy: bool, loops: np.ndarray, dx: np.ndarray,
+          dy: np.ndarray, ir: np.ndarray, out: np.ndarray) -> float:
+    """:func:`scan_into` with its input ``bearing = np.arctan2(ty - y, tx - x)`` made here by
+    numpy's own loop (:mod:`cr_sim.core.ufunc_loops`; ``loops`` its :data:`LOOPS`), ``dx``,
+    ``dy`` (T,) scratch that ends as ``tx - x``, ``ty - y``.
+
+    Returns
+    -------
+    float
+        The smallest IR reading (``Observation.d_o``).
+    """
+    n_t = targets_x.shape[0]
+    for j in range(n_t):
+        dx[j] = targets_x[j] - x
+        dy[j] = targets_y[j] - y
+    arctan2_into(loops, dy, dx, out, n_t)          # bearing, overwritten by the scan
+    scan_into(x, y, th, ir_angles, targets_x, targets_y, out, planes, n_tall, radius,
+              ir_range, noise, noisy, ir, out)
+    d_o = ir[0]
+    for r in range(1, ir.shape[0]):
+        d_o = min(d_o, ir[r])
+    return d_o
+
+
+@njit
 def hold(x: float, y: float, th: float, touching: bool, k: int, k_max: int, u_left: float,
          u_right: float, n: int, v_max: float, wheel_base: float, dt: float, radius: float,
          boxes: tuple, half: float, tol: float, n_bisect: int, dest_x: float, dest_y: float,
@@ -299,16 +311,18 @@ def wander(x: float, y: float, th: float, wl: float, wr: float, touching: bool, 
            n: int, n_max: int, state: np.ndarray, wparams: np.ndarray, front: np.ndarray,
            left: np.ndarray, right: np.ndarray, ir_angles: np.ndarray, planes: np.ndarray,
            radius: float, ir_range: float, sigmas: np.ndarray, noisy: bool, rng,
-           noise_rng, v_max: float, wheel_base: float, dt: float, boxes: tuple, half: float,
+           noise_rng, noise_block: np.ndarray, noise_pos: np.ndarray, v_max: float,
+           wheel_base: float, dt: float, boxes: tuple, half: float,
            tol: float, n_bisect: int, dest_x: float, dest_y: float, goal_r2: float
            ) -> tuple[float, float, float, float, float, bool, int]:
     """The wander of :meth:`cr_sim.core.sim.Simulator.reset` (``start='wander'``) from step
     ``k``: a tick is an observation, :meth:`cr_sim.core.wander.WanderPolicy.act` on it and
     :func:`move`, while ``k < n``, or while the centre is in the goal and ``k < n_max``.
 
-    The observation's IR readings as :func:`scan` computes them, with the noise drawn as
-    ``Simulator.observe`` draws it (``standard_normal(n_rays) * sigmas`` from ``noise_rng``,
-    camera rays included; nothing when not ``noisy``); the camera bearings, which the
+    The observation's IR readings as :func:`scan` computes them, with the noise of
+    ``Simulator.observe``: the next row ``noise_pos[0]`` of ``noise_block`` (B, n_rays),
+    refilled when used up with ``standard_normal((B, n_rays)) * sigmas`` from ``noise_rng``
+    (in order: the same numbers); nothing when not ``noisy``. The camera bearings, which the
     policy does not read, are not computed. The policy's arithmetic and draws from ``rng``
     are :meth:`WanderPolicy.act`'s; its state ``(steer, turn, last_v)`` is read from and
     written to ``state``, its parameters ``wparams`` are ``(speed, turn_speed,
@@ -323,15 +337,22 @@ def wander(x: float, y: float, th: float, wl: float, wr: float, touching: bool, 
                                                          wparams[3], wparams[4])
     steer, turn, last_v = state[0], state[1], state[2]
     n_ir = ir_angles.shape[0]
-    noise = np.zeros(sigmas.shape[0])
+    n_block, n_rays = noise_block.shape
+    pos = noise_pos[0]
+    noise = np.zeros(n_rays)
     ir = np.empty(n_ir)
     while True:
         dx, dy = x - dest_x, y - dest_y
         if not (k < n or (dx * dx + dy * dy <= goal_r2 and k < n_max)):
             break
         if noisy:
-            for r in range(sigmas.shape[0]):
-                noise[r] = noise_rng.standard_normal() * sigmas[r]
+            if pos == n_block:
+                for i in range(n_block):
+                    for r in range(n_rays):
+                        noise_block[i, r] = noise_rng.standard_normal() * sigmas[r]
+                pos = 0
+            noise = noise_block[pos]
+            pos += 1
         ir_into(x, y, th, ir_angles, planes, radius, ir_range, noise, noisy, ir)
         # WanderPolicy.act
         stuck = last_v > 0.0 and 0.5 * (wl + wr) < 0.25 * last_v
@@ -363,4 +384,5 @@ def wander(x: float, y: float, th: float, wl: float, wr: float, touching: bool, 
                                                     n_bisect)
         k += 1
     state[0], state[1], state[2] = steer, turn, last_v
+    noise_pos[0] = pos
     return x, y, th, wl, wr, touching, k
