@@ -53,7 +53,6 @@ from numpy.typing import ArrayLike
 
 from cr_sim.core import kernels
 from cr_sim.core.arena import Arena
-from cr_sim.core.ufunc_loops import LOOPS
 from cr_sim.core.geometry import box_planes, disc_gap, wrap_angle
 from cr_sim.core.params import (
     dataclass,
@@ -61,6 +60,7 @@ from cr_sim.core.params import (
     param,
 )
 from cr_sim.core.robot import RobotParams, clamp_wheels
+from cr_sim.core.ufunc_loops import LOOPS
 from cr_sim.core.wander import WanderParams, WanderPolicy
 
 __all__ = [

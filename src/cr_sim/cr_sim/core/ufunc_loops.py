@@ -152,9 +152,9 @@ def _checked_loops() -> np.ndarray:
     arctan2_into(loops, y, x, out, x.shape[0])
     ok = ok and np.array_equal(out, np.arctan2(y, x))
     if not ok:   # pragma: no cover
-        warnings.warn('cr_sim.core.ufunc_loops: numpy\'s exp/arctan2 loops could not be '
-                      'called from the kernels; using the C library\'s (results differ from '
-                      'numpy\'s in the last bits)', RuntimeWarning, stacklevel=2)
+        warnings.warn("cr_sim.core.ufunc_loops: numpy's exp/arctan2 loops could not be "
+                      "called from the kernels; using the C library's (results differ from "
+                      "numpy's in the last bits)", RuntimeWarning, stacklevel=2)
         return zeros
     return loops
 
