@@ -58,6 +58,7 @@ import math
 from cr_sim.core.kernels import njit
 from cr_sim.core.params import dataclass, param
 from cr_sim.core.robot import integrate_arc, wheels_to_twist
+from cr_sim.core.ufunc_loops import LOOPS, exp_into
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -313,26 +314,15 @@ class MarkovLocalizer:
                              f'got {z.shape[0]}')
         # ln Pr(s | x') = sum_m kappa cos(s_m - mu_m(x')) + const  (von Mises per landmark),
         # at every sub-pose x' of every cell, relative to the best one, clipped at
-        # _LOG_LIK_MIN (no denormals): only each cell's best sub-pose is needed first, and
-        # only the cells where it is not clipped (a few %) need their sub-poses (the others
-        # are all clipped, and get exp(_LOG_LIK_MIN) each)
-        best = _cell_maxima(z, self.kappa, self._cos_phi, self._sin_phi, self._cos_tk,
-                            self._sin_tk, _LOG_LIK_MIN, self._cc, self._ss, self._bound,
-                            self._computed, self._cell_max)
-        if math.isnan(best):
-            return                                   # no landmark seen
-        n_cells, n_vals = _unclipped_sub_poses(
-            self._cc, self._ss, self._cos_th, self._sin_th, self._computed, self._cell_max,
-            best, _LOG_LIK_MIN, self._cells, self._vals)
-        # Pr(s | cell) = mean over its sub-poses (the pose is anywhere inside the cell; the
-        # constant 1/S cancels in the normalisation), then b(x) <- eta Pr(s | x) b(x), with
-        # the floor of a uniform belief: one compiled call around numpy's exp
+        # _LOG_LIK_MIN (no denormals), then Pr(s | cell) and b(x) <- eta Pr(s | x) b(x) with
+        # the floor: one compiled call (_update_into); nothing seen: no change
         p = np.empty(self.shape)
-        _posterior(self._cc, self._ss, self._cos_th, self._sin_th, self._cells[:n_cells], best,
-                   _LOG_LIK_MIN, _EXP_LOG_LIK_MIN, np.exp(self._vals[:n_vals]), self._p,
-                   self._uniform, self._floor_uniform, self.params.floor, _EVIDENCE_MIN,
-                   self._lik, p)
-        self._p = p
+        if _update_into(z, self.kappa, self._cos_phi, self._sin_phi, self._cos_tk, self._sin_tk,
+                        self._cos_th, self._sin_th, _LOG_LIK_MIN, _EXP_LOG_LIK_MIN, self._cc,
+                        self._ss, self._bound, self._computed, self._cell_max, self._cells,
+                        self._vals, LOOPS, self._p, self._uniform, self._floor_uniform,
+                        self.params.floor, _EVIDENCE_MIN, self._lik, p):
+            self._p = p
 
     def _normalised(self, p: np.ndarray) -> np.ndarray:
         """``p / sum(p)``, in place (``p`` is a new array of the caller's)."""
@@ -973,3 +963,29 @@ def _posterior(cc: np.ndarray, ss: np.ndarray, cos_th: np.ndarray, sin_th: np.nd
     else:
         for i in range(n):
             flat[i] *= scale
+
+
+@njit
+def _update_into(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np.ndarray,
+                 cos_tk: np.ndarray, sin_tk: np.ndarray, cos_th: np.ndarray,
+                 sin_th: np.ndarray, low: float, exp_low: float, cc: np.ndarray,
+                 ss: np.ndarray, bound: np.ndarray, computed: np.ndarray,
+                 cell_max: np.ndarray, cells: np.ndarray, vals: np.ndarray,
+                 loops: np.ndarray, prior: np.ndarray, uniform: np.ndarray,
+                 floor_uniform: np.ndarray, floor: float, evidence_min: float,
+                 lik: np.ndarray, out: np.ndarray) -> bool:
+    """The sensor update of :meth:`MarkovLocalizer.update` into ``out``: :func:`_cell_maxima`,
+    :func:`_unclipped_sub_poses`, their exps by numpy's own loop
+    (:func:`cr_sim.core.ufunc_loops.exp_into`; ``loops`` its ``LOOPS``), :func:`_posterior`;
+    the other arrays are their scratch. Returns False (``out`` untouched) when no bearing
+    is finite (nothing seen)."""
+    best = _cell_maxima(z, kappa, cos_phi, sin_phi, cos_tk, sin_tk, low, cc, ss, bound,
+                        computed, cell_max)
+    if math.isnan(best):
+        return False
+    n_cells, n_vals = _unclipped_sub_poses(cc, ss, cos_th, sin_th, computed, cell_max, best,
+                                           low, cells, vals)
+    exp_into(loops, vals, vals, n_vals)
+    _posterior(cc, ss, cos_th, sin_th, cells[:n_cells], best, low, exp_low, vals[:n_vals],
+               prior, uniform, floor_uniform, floor, evidence_min, lik, out)
+    return True
