@@ -189,7 +189,7 @@ class MarkovLocalizer:
         self._wargs = np.empty(16)                    # blur weights' exponents
         self._cc = np.empty((phi.shape[0], n, ny))    # C(p), S(p) per sub-position
         self._ss = np.empty((phi.shape[0], n, ny))
-        self._bound = np.empty((n, ny))
+        self._bound = np.empty((phi.shape[0] + 1, n, ny))
         self._computed = np.empty((n, ny), dtype=np.bool_)
         self._cell_max = np.empty(self.shape)
         self._cells = np.empty(self.size, dtype=np.int64)
@@ -813,8 +813,11 @@ def _cell_maxima(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np.n
     (``cc``, ``ss`` (Q, nx, ny)), and ``cell_max[k, i, j]`` = the largest
     ``C cos theta - S sin theta`` over the sub-poses of cell (k, i, j), for the positions
     (i, j) marked in ``computed``: those whose bound ``max_q hypot(C, S)`` (a sub-pose value
-    ``hypot(C, S) cos(theta + atan2(S, C))`` is at most that) does not rule every cell out;
-    the others are below the best by more than ``-low`` (clipped), whatever their heading.
+    ``hypot(C, S) cos(theta + atan2(S, C))`` is at most that; ``bound`` (Q + 1, nx, ny):
+    per sub-position, then their maximum) does not rule every cell out; the others are
+    below the best by more than ``-low`` (clipped), whatever their heading. Within a
+    position, the sub-positions whose bound rules them out are skipped: that changes no
+    maximum above the clipping level (exact), only maxima of cells that are clipped anyway.
     ``cos_tk``, ``sin_tk`` (T, K): of the sub-headings, transposed.
 
     Returns
@@ -848,10 +851,12 @@ def _cell_maxima(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np.n
         for j in range(ny):
             b = 0.0
             for q in range(n_q):
-                b = max(b, math.sqrt(cc[q, i, j] ** 2 + ss[q, i, j] ** 2))
-            # a margin far above the rounding of C cos - S sin (~1e-13 here)
-            bound[i, j] = b * (1.0 + 1e-9) + 1e-9
-            if bound[i, j] > bound[first_i, first_j]:
+                # a margin far above the rounding of C cos - S sin (~1e-13 here)
+                r = math.sqrt(cc[q, i, j] ** 2 + ss[q, i, j] ** 2) * (1.0 + 1e-9) + 1e-9
+                bound[q, i, j] = r
+                b = max(b, r)
+            bound[n_q, i, j] = b
+            if b > bound[n_q, first_i, first_j]:
                 first_i, first_j = i, j
     best = -np.inf
     computed[:] = False
@@ -861,11 +866,15 @@ def _cell_maxima(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np.n
             i, j = first_i, first_j                   # the most promising position first
         else:
             i, j = pos // ny, pos % ny
-            if computed[i, j] or bound[i, j] < best + low - 1e-6:
+            if computed[i, j] or bound[n_q, i, j] < best + low - 1e-6:
                 continue
         computed[i, j] = True
         v[:] = -np.inf
         for q in range(n_q):
+            if bound[q, i, j] < best + low - 1e-6:
+                # this sub-position is clipped at every heading: whether a cell is clipped,
+                # and the maximum of one that is not, come from the other sub-positions
+                continue
             c, s = cc[q, i, j], ss[q, i, j]
             for t in range(n_t):
                 for k in range(n_k):
