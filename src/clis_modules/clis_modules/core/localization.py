@@ -44,8 +44,16 @@ direction of landmark m from position p, so with ``A_m = s_m - phi_m(p)``::
 
 ``cos phi_m`` and ``sin phi_m`` of every sub-position are precomputed; an update forms C and S
 per sub-position (2 x 2 M products) and the log-likelihood of every sub-pose from them
-(:func:`_log_likelihood`, compiled), then one exp. A landmark that
-is not seen (NaN) adds no information (occlusion is not modelled). The result is normalised,
+(:func:`_log_likelihood`), relative to the best, clipped 50 below it, then exp. A landmark
+that is not seen (NaN) adds no information (occlusion is not modelled).
+
+Computation: each update is one compiled call (:func:`_update_into`), each motion update too
+(:func:`_predict_into`); they do the operations of the reference kernels above them
+(:func:`_shift_pose`, :func:`_blur`, :func:`_log_likelihood`, :func:`_row_max`,
+:func:`_unclipped`, :func:`_sub_pose_sums`) and of numpy's sums (:func:`_pairwise_sum`) in the
+same order, without their intermediate arrays, and skip only sub-poses that are clipped
+anyway (bounded by ``hypot(C, S)``); ``exp`` is numpy's own loop
+(:mod:`cr_sim.core.ufunc_loops`): bit-identical beliefs (tested). The result is normalised,
 then ``floor`` of a uniform belief is mixed in so that no pose is ever ruled out for good; a
 belief that contradicts the reading (evidence below 1e-15 of the best cell's likelihood: the
 kidnapped robot, or ``floor = 0``) restarts from the reading alone.

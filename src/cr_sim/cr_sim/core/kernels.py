@@ -8,8 +8,10 @@ ray casts are the scalar loops of :func:`cr_sim.core.geometry.slab_planes`. Ever
 operation is the one of the reference code, in the same order, and the transcendental functions
 are those of the reference (``math.sin``/``math.cos`` are the C library's in numpy, Python and
 numba alike; ``atan2`` and ``exp``, whose numpy versions are SIMD code that differs from the C
-library in the last bit, stay numpy calls outside the kernels), so the simulator's results are
-bit-identical to the reference code's (tested: ``test/test_sim_kernels.py``).
+library in the last bit, are numpy's own loops called from the kernel,
+:mod:`cr_sim.core.ufunc_loops`), so the simulator's results are bit-identical to the reference
+code's (tested: ``test/test_sim_kernels.py``). :func:`sense` is an observation, :func:`hold`
+the steps between two decisions, :func:`wander` the wander between episodes.
 
 Compiled functions are cached on disk (``__pycache__``); the first import in a fresh checkout
 compiles them (a few seconds).
