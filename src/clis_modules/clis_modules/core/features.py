@@ -26,7 +26,7 @@ import math
 
 from cr_sim.core.geometry import TWO_PI, wrap_angles
 from cr_sim.core.kernels import njit
-from cr_sim.core.ufunc_loops import LOOPS, exp_into
+from cr_sim.core.ufunc_loops import LOOPS, exp_into, pairwise_sum
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -217,31 +217,8 @@ def _rbf_exponents(x: np.ndarray, centers: np.ndarray, sizes: np.ndarray, phi: n
         start = stop
 
 
-#: Length up to which :func:`_pairwise_sum` reproduces ``np.sum`` (numpy's block size).
+#: Grids up to this many RBFs: one input's features compiled (numpy's block size).
 _PAIRWISE_BLOCK = 128
-
-
-@njit
-def _pairwise_sum(a: np.ndarray) -> float:
-    """``np.sum(a)`` of a contiguous float64 array of at most 128 elements, in numpy's order
-    of additions (its pairwise summation: 8 partial sums)."""
-    n = a.shape[0]
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    r = a[:8].copy()
-    i = 8
-    while i < n - n % 8:
-        for j in range(8):
-            r[j] += a[i + j]
-        i += 8
-    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-    while i < n:
-        res += a[i]
-        i += 1
-    return res
 
 
 @njit
@@ -261,7 +238,7 @@ def _rbf_products(g: np.ndarray, sizes: np.ndarray, normalize: bool, b: np.ndarr
         n *= m
         start += m
     if normalize:
-        total = _pairwise_sum(out)
+        total = pairwise_sum(out, 0, n_rbf)      # np.sum's order
         for i in range(n_rbf):
             out[i] /= total
     b[:n_rbf] = out

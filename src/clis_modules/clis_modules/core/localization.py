@@ -67,6 +67,7 @@ from cr_sim.core.kernels import njit
 from cr_sim.core.params import dataclass, param
 from cr_sim.core.robot import integrate_arc, wheels_to_twist
 from cr_sim.core.ufunc_loops import LOOPS, exp_into
+from cr_sim.core.ufunc_loops import pairwise_sum as _pairwise_sum
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -369,15 +370,22 @@ def _extend(idx: int, n: int, wrap: bool) -> int:
 def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.ndarray:
     """Separable Gaussian blur of ``p`` (K, nx, ny), C-contiguous: axis 0 periodic (``wrap``),
     axes 1 and 2 mirrored at the walls (``reflect``), one axis after the other, each with its
-    symmetric weights ``w`` (2 r + 1,) (empty: the axis is skipped). A new array.
+    symmetric weights ``w`` (2 r + 1,) (empty: the axis is skipped). A new array
+    (:func:`_blur_passes`).
 
     ``scipy.ndimage.gaussian_filter``'s arithmetic (its correlate1d of a symmetric kernel:
     ``out = x[0] w[r] + sum_{j = -r .. -1} (x[j] + x[-j]) w[r + j]``, in that order), so the
     results are the same bit for bit; the loops run over whole contiguous rows.
     """
-    n_k, nx, ny = p.shape
-    src = p.copy()
-    dst = np.empty_like(p)
+    return _blur_passes(p.copy(), np.empty_like(p), w0, w1, w2)
+
+
+@njit
+def _blur_passes(src: np.ndarray, dst: np.ndarray, w0: np.ndarray, w1: np.ndarray,
+                 w2: np.ndarray) -> np.ndarray:
+    """The passes of :func:`_blur` from ``src`` (overwritten), ``dst`` scratch of its shape:
+    returns the one of the two that holds the result."""
+    n_k, nx, ny = src.shape
     if w0.size:
         r = w0.size // 2
         for k in range(n_k):
@@ -386,9 +394,10 @@ def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.n
                     dst[k, i, c] = src[k, i, c] * w0[r]
             for j in range(-r, 0):
                 lo, hi = _extend(k + j, n_k, True), _extend(k - j, n_k, True)
+                wj = w0[r + j]
                 for i in range(nx):
                     for c in range(ny):
-                        dst[k, i, c] += (src[lo, i, c] + src[hi, i, c]) * w0[r + j]
+                        dst[k, i, c] += (src[lo, i, c] + src[hi, i, c]) * wj
         src, dst = dst, src
     if w1.size:
         r = w1.size // 2
@@ -398,21 +407,26 @@ def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.n
                     dst[k, i, c] = src[k, i, c] * w1[r]
                 for j in range(-r, 0):
                     lo, hi = _extend(i + j, nx, False), _extend(i - j, nx, False)
+                    wj = w1[r + j]
                     for c in range(ny):
-                        dst[k, i, c] += (src[k, lo, c] + src[k, hi, c]) * w1[r + j]
+                        dst[k, i, c] += (src[k, lo, c] + src[k, hi, c]) * wj
         src, dst = dst, src
     if w2.size:
         r = w2.size // 2
+        ext = np.empty(ny + 2 * r, dtype=np.int64)
+        for c in range(ny + 2 * r):
+            ext[c] = _extend(c - r, ny, False)
         line = np.empty(ny + 2 * r)
         for k in range(n_k):
             for i in range(nx):
-                for e in range(ny + 2 * r):
-                    line[e] = src[k, i, _extend(e - r, ny, False)]
+                for c in range(ny + 2 * r):
+                    line[c] = src[k, i, ext[c]]
                 for c in range(ny):
                     dst[k, i, c] = line[c + r] * w2[r]
                 for j in range(-r, 0):
+                    wj = w2[r + j]
                     for c in range(ny):
-                        dst[k, i, c] += (line[c + r + j] + line[c + r - j]) * w2[r + j]
+                        dst[k, i, c] += (line[c + r + j] + line[c + r - j]) * wj
         src, dst = dst, src
     return src
 
@@ -420,79 +434,68 @@ def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.n
 @njit
 def _shift_pose(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, dy: float,
                 dtheta: float, cell: float, bin_: float) -> np.ndarray:
-    """Steps 1-2 of the motion update (:meth:`MarkovLocalizer._shift`): layer k's shift
-    ``R(theta_k) (dx, dy)`` in cells (clipped to the grid's size plus one) and the heading
-    roll ``dtheta`` in bins, split into whole cells and fractions for :func:`_shift_kernel`."""
-    n_k, n, ny = p.shape
+    """Steps 1-2 of the motion update (:meth:`MarkovLocalizer._shift`) into a new array
+    (:func:`_shift_into`)."""
+    n_k, nx, ny = p.shape
+    pad = max(nx, ny) + 2
+    out = np.empty_like(p)
+    _shift_into(p, cos_k, sin_k, dx, dy, dtheta, cell, bin_,
+                np.zeros((n_k, nx + 2 * pad, ny + 2 * pad)), np.empty_like(p), out)
+    return out
+
+
+@njit
+def _shift_into(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, dy: float,
+                dtheta: float, cell: float, bin_: float, padded: np.ndarray, q: np.ndarray,
+                out: np.ndarray) -> None:
+    """Steps 1-2 of the motion update into ``out``: layer k's shift ``R(theta_k) (dx, dy)``
+    in cells (clipped to the grid's size plus one), split into whole cells ``i`` and a
+    fraction ``f`` in [0, 1): mass at cell c moves to c + i + f,
+    ``q[c] = (1 - f) p[c - i] + f p[c - i - 1]`` per axis (x first, then y; zero outside
+    the grid), then the heading roll ``dtheta`` in bins ``it + ft``:
+    ``out[k] = (1 - ft) q[k - it] + ft q[k - it - 1]`` (indices mod K; ``q[k - it]`` when
+    ``ft = 0``). ``padded`` (K, nx + 2 P, ny + 2 P) is zero but for its middle, ``P`` above
+    the largest shift (``max(nx, ny) + 2``): the shift reads a 0.0 for a cell off the grid;
+    ``q`` scratch of ``p``'s shape."""
+    n_k, nx, ny = p.shape
     ix = np.empty(n_k, dtype=np.int64)
     iy = np.empty(n_k, dtype=np.int64)
     fx = np.empty(n_k)
     fy = np.empty(n_k)
     for k in range(n_k):
-        sx = min(max((cos_k[k] * dx - sin_k[k] * dy) / cell, -n - 1.0), n + 1.0)
+        sx = min(max((cos_k[k] * dx - sin_k[k] * dy) / cell, -nx - 1.0), nx + 1.0)
         sy = min(max((sin_k[k] * dx + cos_k[k] * dy) / cell, -ny - 1.0), ny + 1.0)
         ax, ay = math.floor(sx), math.floor(sy)
         ix[k], fx[k] = int(ax), sx - ax
         iy[k], fy[k] = int(ay), sy - ay
     st = dtheta / bin_
-    it = math.floor(st)
-    return _shift_kernel(p, ix, fx, iy, fy, int(it), st - it)
-
-
-@njit
-def _shift_kernel(p: np.ndarray, ix: np.ndarray, fx: np.ndarray, iy: np.ndarray,
-                  fy: np.ndarray, it: int, ft: float) -> np.ndarray:
-    """Bilinear shift of each heading layer, then the linear roll of the heading axis.
-
-    Parameters
-    ----------
-    p : np.ndarray, shape (K, nx, ny)
-    ix, iy : np.ndarray of int, shape (K,)
-        Whole cells of the shift of layer k; ``fx, fy`` (K,) the fractions in [0, 1).
-    it : int
-        Whole heading bins of the roll; ``ft`` the fraction in [0, 1).
-
-    Returns
-    -------
-    np.ndarray, shape (K, nx, ny)
-        Mass at cell c moves to c + i + f: ``q[c] = (1 - f) p[c - i] + f p[c - i - 1]`` per
-        axis (x first, then y; zero outside the grid), then
-        ``out[k] = (1 - ft) q[k - it] + ft q[k - it - 1]`` (indices mod K; ``q[k - it]`` when
-        ``ft = 0``).
-    """
-    n_k, nx, ny = p.shape
-    q = np.empty_like(p)
+    it = int(math.floor(st))
+    ft = st - math.floor(st)
+    pad = (padded.shape[1] - nx) // 2
     for k in range(n_k):
-        gx, gy = 1.0 - fx[k], 1.0 - fy[k]
         for i in range(nx):
-            i0 = i - ix[k]
-            i1 = i0 - 1
-            in0 = 0 <= i0 < nx
-            in1 = 0 <= i1 < nx
             for j in range(ny):
-                j0 = j - iy[k]
-                j1 = j0 - 1
-                a0 = a1 = 0.0
-                if 0 <= j0 < ny:
-                    a0 = gx * (p[k, i0, j0] if in0 else 0.0) + fx[k] * (p[k, i1, j0] if in1
-                                                                         else 0.0)
-                if 0 <= j1 < ny:
-                    a1 = gx * (p[k, i0, j1] if in0 else 0.0) + fx[k] * (p[k, i1, j1] if in1
-                                                                         else 0.0)
-                q[k, i, j] = gy * a0 + fy[k] * a1
+                padded[k, pad + i, pad + j] = p[k, i, j]
+    for k in range(n_k):
+        gx, gy, fxk, fyk = 1.0 - fx[k], 1.0 - fy[k], fx[k], fy[k]
+        o = pad - iy[k]
+        for i in range(nx):
+            row0 = padded[k, pad + i - ix[k]]
+            row1 = padded[k, pad + i - ix[k] - 1]
+            for j in range(ny):
+                a0 = gx * row0[o + j] + fxk * row1[o + j]
+                a1 = gx * row0[o + j - 1] + fxk * row1[o + j - 1]
+                q[k, i, j] = gy * a0 + fyk * a1
     if ft == 0.0:
-        out = np.empty_like(q)
         for k in range(n_k):
             out[k] = q[(k - it) % n_k]
-        return out
-    out = np.empty_like(q)
-    gt = 1.0 - ft
-    for k in range(n_k):
-        k0, k1 = (k - it) % n_k, (k - it - 1) % n_k
-        for i in range(nx):
-            for j in range(ny):
-                out[k, i, j] = gt * q[k0, i, j] + ft * q[k1, i, j]
-    return out
+    else:
+        gt = 1.0 - ft
+        for k in range(n_k):
+            k0, k1 = (k - it) % n_k, (k - it - 1) % n_k
+            for i in range(nx):
+                for j in range(ny):
+                    out[k, i, j] = gt * q[k0, i, j] + ft * q[k1, i, j]
 
 
 @njit
@@ -602,75 +605,6 @@ def _sub_pose_sums(a: np.ndarray, cells: np.ndarray, best: float, low: float, ex
 # the same order, without the intermediate arrays (tested against them, bit for bit)
 
 @njit
-def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
-    """``np.sum(a[lo:lo + n])`` for ``n <= 128`` (one block of numpy's pairwise summation:
-    8 partial sums; sequential from -0.0 below 8 elements)."""
-    if n < 8:
-        res = -0.0
-        for i in range(lo, lo + n):
-            res += a[i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = lo + 8
-    stop = lo + n - n % 8
-    while i < stop:
-        r0 += a[i]
-        r1 += a[i + 1]
-        r2 += a[i + 2]
-        r3 += a[i + 3]
-        r4 += a[i + 4]
-        r5 += a[i + 5]
-        r6 += a[i + 6]
-        r7 += a[i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < lo + n:
-        res += a[i]
-        i += 1
-    return res
-
-
-@njit
-def _pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
-    """``np.sum(a[lo:lo + n])`` of a contiguous float64 array, in numpy's order of additions:
-    its pairwise summation splits ``n > 128`` elements at ``n2 = n // 2 - (n // 2) % 8``
-    and adds the sums of the two parts, blocks of at most 128 by :func:`_block_sum`.
-
-    The recursion runs on an explicit stack (numba's cache cannot hold a self-recursive
-    function: loading one compiled by another process crashes)."""
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    los = np.empty(64, dtype=np.int64)       # depth <= log2(n): 64 is never reached
-    ns = np.empty(64, dtype=np.int64)
-    left = np.empty(64)                      # sum of the left part, once known
-    stage = np.empty(64, dtype=np.int64)     # 0: new, 1: left part pending, 2: right part
-    sp = 0
-    los[0], ns[0], stage[0] = lo, n, 0
-    while True:
-        if ns[sp] > 128:                     # split: the left part first
-            n2 = ns[sp] // 2
-            n2 -= n2 % 8
-            stage[sp] = 1
-            los[sp + 1], ns[sp + 1], stage[sp + 1] = los[sp], n2, 0
-            sp += 1
-            continue
-        v = _block_sum(a, los[sp], ns[sp])
-        sp -= 1
-        while sp >= 0 and stage[sp] == 2:    # right parts done: left + right, upwards
-            v = left[sp] + v
-            sp -= 1
-        if sp < 0:
-            return v
-        left[sp] = v                         # a left part done: now its right part
-        stage[sp] = 2
-        n2 = ns[sp] // 2
-        n2 -= n2 % 8
-        los[sp + 1], ns[sp + 1], stage[sp + 1] = los[sp] + n2, ns[sp] - n2, 0
-        sp += 1
-
-
-@njit
 def _weight_exponents(s_th: float, n_th: int, s_xy: float, n_xy: int, out: np.ndarray) -> None:
     """The exponents ``-0.5 / sigma^2 x^2`` of :func:`_gaussian_weights` for
     ``x = -r .. r`` (``n = 2 r + 1`` of them; none for ``n = 0``): heading then position,
@@ -706,94 +640,10 @@ def _predict_into(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float
     ``buf1`` scratch of ``p``'s shape, ``padded`` (K, nx + 2 P, ny + 2 P) zero but for its
     middle, ``P`` above the largest shift (``max(nx, ny) + 2``). Returns False (``out``
     unfinished) when the sum is not positive and finite."""
-    n_k, nx, ny = p.shape
-    # steps 1-2 (_shift_pose, _shift_kernel): into buf1 through buf0
-    ix = np.empty(n_k, dtype=np.int64)
-    iy = np.empty(n_k, dtype=np.int64)
-    fx = np.empty(n_k)
-    fy = np.empty(n_k)
-    for k in range(n_k):
-        sx = min(max((cos_k[k] * dx - sin_k[k] * dy) / cell, -nx - 1.0), nx + 1.0)
-        sy = min(max((sin_k[k] * dx + cos_k[k] * dy) / cell, -ny - 1.0), ny + 1.0)
-        ax, ay = math.floor(sx), math.floor(sy)
-        ix[k], fx[k] = int(ax), sx - ax
-        iy[k], fy[k] = int(ay), sy - ay
-    st = dtheta / bin_
-    it = int(math.floor(st))
-    ft = st - math.floor(st)
-    # p inside a border of zeros (``padded``: zero outside its middle (K, nx, ny)), so the
-    # shift reads a 0.0 where _shift_kernel takes 0.0 for a cell off the grid
-    pad = (padded.shape[1] - nx) // 2
-    for k in range(n_k):
-        for i in range(nx):
-            for j in range(ny):
-                padded[k, pad + i, pad + j] = p[k, i, j]
-    q = buf0
-    for k in range(n_k):
-        gx, gy, fxk, fyk = 1.0 - fx[k], 1.0 - fy[k], fx[k], fy[k]
-        o = pad - iy[k]
-        for i in range(nx):
-            row0 = padded[k, pad + i - ix[k]]
-            row1 = padded[k, pad + i - ix[k] - 1]
-            for j in range(ny):
-                a0 = gx * row0[o + j] + fxk * row1[o + j]
-                a1 = gx * row0[o + j - 1] + fxk * row1[o + j - 1]
-                q[k, i, j] = gy * a0 + fyk * a1
-    src = buf1
-    if ft == 0.0:
-        for k in range(n_k):
-            src[k] = q[(k - it) % n_k]
-    else:
-        gt = 1.0 - ft
-        for k in range(n_k):
-            k0, k1 = (k - it) % n_k, (k - it - 1) % n_k
-            for i in range(nx):
-                for j in range(ny):
-                    src[k, i, j] = gt * q[k0, i, j] + ft * q[k1, i, j]
-    dst = buf0
-    # step 3 (_blur): axis 0 periodic, axes 1 and 2 mirrored, each pass src -> dst
-    if n_th:
-        w0 = _normalised_weights(e, 0, n_th)
-        r = n_th // 2
-        for k in range(n_k):
-            for i in range(nx):
-                for c in range(ny):
-                    dst[k, i, c] = src[k, i, c] * w0[r]
-            for j in range(-r, 0):
-                lo, hi = _extend(k + j, n_k, True), _extend(k - j, n_k, True)
-                wj = w0[r + j]
-                for i in range(nx):
-                    for c in range(ny):
-                        dst[k, i, c] += (src[lo, i, c] + src[hi, i, c]) * wj
-        src, dst = dst, src
-    if n_xy:
-        w1 = _normalised_weights(e, n_th, n_xy)
-        r = n_xy // 2
-        for k in range(n_k):
-            for i in range(nx):
-                for c in range(ny):
-                    dst[k, i, c] = src[k, i, c] * w1[r]
-                for j in range(-r, 0):
-                    lo, hi = _extend(i + j, nx, False), _extend(i - j, nx, False)
-                    wj = w1[r + j]
-                    for c in range(ny):
-                        dst[k, i, c] += (src[k, lo, c] + src[k, hi, c]) * wj
-        src, dst = dst, src
-        ext = np.empty(ny + 2 * r, dtype=np.int64)
-        for c in range(ny + 2 * r):
-            ext[c] = _extend(c - r, ny, False)
-        line = np.empty(ny + 2 * r)
-        for k in range(n_k):
-            for i in range(nx):
-                for c in range(ny + 2 * r):
-                    line[c] = src[k, i, ext[c]]
-                for c in range(ny):
-                    dst[k, i, c] = line[c + r] * w1[r]
-                for j in range(-r, 0):
-                    wj = w1[r + j]
-                    for c in range(ny):
-                        dst[k, i, c] += (line[c + r + j] + line[c + r - j]) * wj
-        src, dst = dst, src
+    # steps 1-2 (_shift_pose) into buf1, step 3 (_blur) from there
+    _shift_into(p, cos_k, sin_k, dx, dy, dtheta, cell, bin_, padded, buf0, buf1)
+    w_xy = _normalised_weights(e, n_th, n_xy)
+    src = _blur_passes(buf1, buf0, _normalised_weights(e, 0, n_th), w_xy, w_xy)
     # p *= free; p / sum(p)
     flat_src = src.reshape(-1)
     flat_free = free.reshape(-1)

@@ -25,7 +25,7 @@ import numpy as np
 
 from cr_sim.core.geometry import TWO_PI, disc_gap, wrap_angle
 from cr_sim.core.robot import clamp_wheel, integrate_arc
-from cr_sim.core.ufunc_loops import HAVE_NUMBA, arctan2_into, njit
+from cr_sim.core.ufunc_loops import HAVE_NUMBA, arctan2_into, njit, pairwise_sum
 
 __all__ = ['HAVE_NUMBA', 'njit', 'move', 'hold', 'scan', 'scan_into', 'scan_many', 'ir_into',
            'sense', 'odometry_step', 'odometry', 'wander']
@@ -282,30 +282,14 @@ def hold(x: float, y: float, th: float, touching: bool, k: int, k_max: int, u_le
 
 @njit
 def _masked_sum(a: np.ndarray, mask: np.ndarray) -> float:
-    """``np.sum(a[mask])`` (its pairwise order for up to 128 selected elements: sequential
-    from -0.0 below 8, else 8 partial sums)."""
+    """``np.sum(a[mask])`` (numpy's order of additions: :func:`ufunc_loops.pairwise_sum`)."""
     sel = np.empty(a.shape[0])
     n = 0
     for i in range(a.shape[0]):
         if mask[i]:
             sel[n] = a[i]
             n += 1
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += sel[i]
-        return res
-    r = sel[:8].copy()
-    i = 8
-    while i < n - n % 8:
-        for j in range(8):
-            r[j] += sel[i + j]
-        i += 8
-    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-    while i < n:
-        res += sel[i]
-        i += 1
-    return res
+    return pairwise_sum(sel, 0, n)
 
 
 @njit

@@ -1,4 +1,5 @@
-"""numpy's own ``exp`` and ``arctan2`` inside compiled kernels, bit for bit.
+"""numpy's own ``exp`` and ``arctan2`` (and its order of ``sum``) inside compiled kernels, bit
+for bit.
 
 numpy computes ``exp`` and ``arctan2`` of float64 arrays with SIMD code chosen for the CPU at
 import (AVX-512 here), whose results differ from the C library's (``math.exp``, numba's) in the
@@ -15,6 +16,9 @@ no address, so numba's disk cache stays valid). At import the loops are checked 
 on a few thousand inputs; if that fails (another numpy layout), :data:`LOOPS` holds zeros and
 the kernels fall back to ``math.exp`` / ``math.atan2`` (correct, not numpy's bits; a warning
 says so). Without numba the functions below are numpy calls.
+
+:func:`pairwise_sum` adds in ``np.sum``'s order (its pairwise summation), for kernels that sum
+what numpy code summed.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ except ImportError:  # pragma: no cover
         """numba is not installed: run ``fn`` as plain Python (same results, slower)."""
         return fn
 
-__all__ = ['LOOPS', 'exp_into', 'arctan2_into']
+__all__ = ['LOOPS', 'exp_into', 'arctan2_into', 'block_sum', 'pairwise_sum']
 
 
 def _loop_of(ufunc: np.ufunc, types: str) -> tuple[int, int]:
@@ -130,6 +134,75 @@ else:  # pragma: no cover
                      n: int) -> None:
         """``out[:n] = np.arctan2(y[:n], x[:n])``."""
         out[:n] = np.arctan2(y[:n], x[:n])
+
+
+@njit
+def block_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """``np.sum(a[lo:lo + n])`` for ``n <= 128`` (one block of numpy's pairwise summation:
+    8 partial sums; sequential from -0.0 below 8 elements)."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = lo + 8
+    stop = lo + n - n % 8
+    while i < stop:
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < lo + n:
+        res += a[i]
+        i += 1
+    return res
+
+
+@njit
+def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """``np.sum(a[lo:lo + n])`` of a contiguous float64 array, in numpy's order of additions:
+    its pairwise summation splits ``n > 128`` elements at ``n2 = n // 2 - (n // 2) % 8``
+    and adds the sums of the two parts, blocks of at most 128 by :func:`block_sum`.
+
+    The recursion runs on an explicit stack (numba's cache cannot hold a self-recursive
+    function: loading one compiled by another process crashes)."""
+    if n <= 128:
+        return block_sum(a, lo, n)
+    los = np.empty(64, dtype=np.int64)       # depth <= log2(n): 64 is never reached
+    ns = np.empty(64, dtype=np.int64)
+    left = np.empty(64)                      # sum of the left part, once known
+    stage = np.empty(64, dtype=np.int64)     # 0: new, 1: left part pending, 2: right part
+    sp = 0
+    los[0], ns[0], stage[0] = lo, n, 0
+    while True:
+        if ns[sp] > 128:                     # split: the left part first
+            n2 = ns[sp] // 2
+            n2 -= n2 % 8
+            stage[sp] = 1
+            los[sp + 1], ns[sp + 1], stage[sp + 1] = los[sp], n2, 0
+            sp += 1
+            continue
+        v = block_sum(a, los[sp], ns[sp])
+        sp -= 1
+        while sp >= 0 and stage[sp] == 2:    # right parts done: left + right, upwards
+            v = left[sp] + v
+            sp -= 1
+        if sp < 0:
+            return v
+        left[sp] = v                         # a left part done: now its right part
+        stage[sp] = 2
+        n2 = ns[sp] // 2
+        n2 -= n2 % 8
+        los[sp + 1], ns[sp + 1], stage[sp + 1] = los[sp] + n2, ns[sp] - n2, 0
+        sp += 1
 
 
 def _checked_loops() -> np.ndarray:
