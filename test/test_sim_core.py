@@ -386,7 +386,7 @@ def test_step_does_not_sense(params, arena, monkeypatch):
     def boom(*args, **kwargs):
         raise AssertionError('sensor model computed')
 
-    monkeypatch.setattr(sim_module.kernels, 'scan_into', boom)  # the sensor model's ray casts
+    monkeypatch.setattr(sim_module.kernels, 'sense', boom)  # the sensor model's ray casts
     res = sim.step((0.3, 0.3))
     with pytest.raises(AssertionError):
         _ = res.obs

@@ -9,6 +9,7 @@ from types import SimpleNamespace
 from clis_modules.core.decider import Decider
 from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.localization import (
+    _EVIDENCE_MIN,
     _EXP_LOG_LIK_MIN,
     _LOG_LIK_MIN,
     MarkovLocalizer,
@@ -283,3 +284,168 @@ def test_rbf_single_input_is_the_batch_row_bit_for_bit():
                 x[0] = np.nan
             np.testing.assert_array_equal(g1([x[0]]), g1.batch([[x[0]]])[0])
             np.testing.assert_array_equal(g2(x), g2.batch([x])[0])
+
+
+def _predict_reference(loc, dx, dy, dtheta):
+    """MarkovLocalizer.predict as written before the fused kernel (issue 8, third pass)."""
+    p = loc._shift(loc._p, dx, dy, dtheta)
+    prm = loc.params
+    s_xy = (prm.trans_noise * math.hypot(dx, dy) + prm.trans_noise_min) / loc.cell
+    s_th = (prm.rot_noise * abs(dtheta) + math.radians(prm.rot_noise_min_deg)) / loc.bin
+    if s_xy > 0.0 or s_th > 0.0:
+        w_xy = _gaussian_weights(s_xy, 3.0)
+        p = _blur(p, _gaussian_weights(s_th, 3.0), w_xy, w_xy)
+    p *= loc._free
+    total = p.sum()
+    if not (total > 0.0 and math.isfinite(total)):
+        return loc._uniform.copy()
+    p /= total
+    return p
+
+
+def _update_reference(loc, z):
+    """MarkovLocalizer.update as written before the fused kernels (issue 8, third pass)."""
+    seen = np.isfinite(z)
+    if not seen.any():
+        return loc._p
+    zs = np.where(seen, z, 0.0)
+    loglik = _log_likelihood(np.cos(zs), np.sin(zs), seen, loc.kappa, loc._cos_phi,
+                             loc._sin_phi, loc._cos_th, loc._sin_th)
+    rows = loglik.reshape(loc._n_sub, -1)
+    cell_max = _row_max(rows)
+    best = float(cell_max.max())
+    cells, vals = _unclipped(rows, cell_max, best, _LOG_LIK_MIN)
+    lik = _sub_pose_sums(rows, cells, best, _LOG_LIK_MIN, _EXP_LOG_LIK_MIN,
+                         np.exp(vals)).reshape(loc.shape)
+    p = lik * loc._p
+    total = p.sum()
+    if not (total > _EVIDENCE_MIN and math.isfinite(total)):
+        p = lik * loc._uniform
+        total = p.sum()
+    f = loc.params.floor
+    p *= (1.0 - f) / total
+    if f > 0.0:
+        p += loc._floor_uniform
+    return p
+
+
+@pytest.mark.parametrize('floor', [1e-6, 0.0, 0.05])
+def test_localization_fused_predict_and_update_are_the_reference_bit_for_bit(world, floor):
+    """The fused kernels of predict and update (pruned cell maxima, one call for the
+    posterior) give the beliefs of the composition of the kernels they replace, along a
+    robot's trajectory with its real bearings, and on random beliefs, odometry and bearings
+    (some or all landmarks unseen, contradicting readings, no motion, large motions)."""
+    import dataclasses
+    params, arena = world
+    lm, half, boxes = arena_map(arena)
+    prm = dataclasses.replace(load_module_params().place.localization, floor=floor)
+    loc = MarkovLocalizer(prm, lm, half, boxes)
+    sim = Simulator(arena, params, np.random.default_rng(5))
+    rng = np.random.default_rng(6)
+    sim.reset('A')
+    n_checked = 0
+    for step in range(400):
+        if step % 100 == 0:
+            loc.reset()
+        if step % 7 == 3:                                    # a random belief
+            loc.set_belief(rng.random(loc.shape) ** 8)
+        u = rng.uniform(-0.6, 0.6, 2)
+        res, wheels = sim.hold(u, 24)
+        x = y = th = 0.0
+        for vl, vr in wheels:
+            x, y, th = kernels.odometry_step(x, y, th, vl, vr, params.robot.wheel_base,
+                                             params.episode.dt)
+        if step % 11 == 5:
+            x, y, th = rng.normal(0.0, [0.5, 0.2, 2.0])      # large odometry
+        if step % 13 == 6:
+            x = y = th = 0.0
+        want = _predict_reference(loc, x, y, th)
+        loc.predict(x, y, th)
+        np.testing.assert_array_equal(loc._p, want)
+        z = np.array(sim.observe().landmark_bearings)
+        if step % 5 == 1:                                    # random bearings, some unseen
+            z = rng.uniform(-math.pi, math.pi, len(z))
+            z[rng.random(len(z)) < 0.3] = np.nan
+        if step % 17 == 2:
+            z[:] = np.nan
+        want = _update_reference(loc, z)
+        loc.update(z)
+        np.testing.assert_array_equal(loc._p, want)
+        n_checked += 1
+        if res.done:
+            sim.reset('random')
+    assert n_checked == 400
+
+
+def test_pairwise_sum_is_numpys_sum():
+    from clis_modules.core.localization import _pairwise_sum as pairwise
+    rng = np.random.default_rng(8)
+    for n in list(range(0, 300)) + [1600, 4800, 4801, 9999]:
+        a = rng.random(n) * rng.choice([1e-9, 1.0, 1e7], n)
+        assert pairwise(a, 0, n) == a.sum()
+        if n > 10:
+            assert pairwise(a, 3, n - 5) == a[3:n - 2].sum()
+
+
+@pytest.mark.parametrize('noise', [True, False])
+def test_wander_kernel_is_the_python_loop_bit_for_bit(world, noise):
+    """Simulator.reset('wander') (the compiled loop) leaves the simulator, the wander policy
+    and both random generators as the loop of observe, WanderPolicy.act and _move does."""
+    import dataclasses
+    params, arena = world
+    if not noise:
+        params = dataclasses.replace(params, sensors=dataclasses.replace(
+            params.sensors, ir_noise_sigma=0.0, bearing_noise_deg=0.0))
+    sims = [Simulator(arena, params, np.random.default_rng([9, int(noise)])) for _ in range(2)]
+
+    def state(sim):
+        w = sim._wander
+        return (sim._x, sim._y, sim._th, sim._wl, sim._wr, sim._touching, sim._tick, sim._k,
+                w._steer, w._turn, w._last_v, sim._rng.bit_generator.state,
+                sim._noise_rng.bit_generator.state)
+
+    rng = np.random.default_rng(10)
+    for episode in range(40):
+        for sim in sims:
+            if episode % 3 == 1:
+                sim.observe()              # the first wander tick reads this observation
+        sims[0]._set_pose(*sims[0]._run_wander())
+        sims[1]._set_pose(*sims[1]._run_wander_reference())
+        assert state(sims[0]) == state(sims[1])
+        u, n = rng.uniform(-1.0, 1.0, 2), int(rng.integers(1, 200))
+        for sim in sims:                   # an episode's worth of driving in between
+            sim.hold(u, n)
+        assert state(sims[0]) == state(sims[1])
+
+
+def test_sensing_is_the_reference_bit_for_bit(world):
+    """Simulator.observe and Simulator.sense (one kernel with numpy's arctan2 loop, noise
+    drawn in blocks) give the readings of the code before them: per observation
+    standard_normal(n_rays) * sigmas, np.arctan2 then kernels.scan_into, d_o = min(ir)."""
+    params, arena = world
+    sim = Simulator(arena, params, np.random.default_rng(11))
+    ref_noise = np.random.default_rng(11).spawn(1)[0]
+    rng = np.random.default_rng(12)
+    sim.reset('A')
+    for step in range(3000):
+        noise = ref_noise.standard_normal(sim._n_rays) * sim._sigmas
+        x, y, th = sim._x, sim._y, sim._th
+        dx, dy = sim._targets_x - x, sim._targets_y - y
+        ir, bearing = kernels.scan(x, y, th, sim._ir_angles, sim._targets_x, sim._targets_y,
+                                   np.arctan2(dy, dx), sim._planes, sim._n_tall, sim._r,
+                                   sim._ir_range, noise, sim._noisy)
+        if step % 2:
+            obs = sim.observe()
+            dest, d_o, lm = sim.sense()
+        else:
+            dest, d_o, lm = sim.sense()
+            obs = sim.observe()
+        np.testing.assert_array_equal(obs.ir, ir)
+        np.testing.assert_array_equal(obs.landmark_bearings, bearing[1:])
+        np.testing.assert_array_equal(lm, bearing[1:])
+        assert d_o == obs.d_o == ir.min()
+        assert (math.isnan(dest) and math.isnan(bearing[0])) or dest == bearing[0]
+        assert (math.isnan(dest) and math.isnan(obs.dest_bearing)) or dest == obs.dest_bearing
+        res = sim.step(rng.uniform(-1.0, 1.0, 2))
+        if res.done:
+            sim.reset('random')       # observes: the next reference draw is its noise

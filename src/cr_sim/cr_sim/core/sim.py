@@ -60,6 +60,7 @@ from cr_sim.core.params import (
     param,
 )
 from cr_sim.core.robot import RobotParams, clamp_wheels
+from cr_sim.core.ufunc_loops import LOOPS
 from cr_sim.core.wander import WanderParams, WanderPolicy
 
 __all__ = [
@@ -72,6 +73,7 @@ IGNORED_SECTIONS = ('node',)
 
 _N_BISECT = 20          # halvings of the contact search: resolution 2^-20 of a step
 _MAX_TRIES = 100_000    # rejection sampling of a random free start
+_NOISE_BLOCK = 256      # observations' noise drawn at a time
 
 
 # ------------------------------------------------------------------------------------------
@@ -310,6 +312,13 @@ class Simulator:
         self._sigmas = np.concatenate([np.full(self._n_ir, sp.ir_noise_sigma),
                                        np.full(len(self._targets), sig_b)])
         self._no_noise = np.zeros(self._n_rays)
+        # the noise of the next observations, drawn _NOISE_BLOCK at a time (the same stream
+        # as one draw per observation: standard_normal fills its array in order)
+        self._noise_block = np.empty((0, self._n_rays))
+        self._noise_pos = 0
+        self._scan_dx, self._scan_dy = np.empty(len(self._targets)), np.empty(len(self._targets))
+        self._scan_tick = -1
+        self._scan = (math.nan, math.nan, np.empty(0))
 
         self._held = np.empty((1, 2))          # executed wheels of the steps of hold()
         self._wander = WanderPolicy(params.wander, self._ir_angles, rng)
@@ -442,6 +451,43 @@ class Simulator:
         self._k = 0
         k = 0
         # keep wandering while in the goal (the episode would be over at once); bounded
+        n_max = 10 * n + 1000
+        if self._obs_tick == self._tick and (k < n or (self._in_goal(self._x, self._y)
+                                                        and k < n_max)):
+            # the first tick reads the observation already made (no new noise)
+            u = self._wander.act(self.observe())
+            self._move(float(u[0]), float(u[1]))
+            self._tick += 1
+            k += 1
+        # the other ticks: observation (IR), WanderPolicy.act and _move compiled as one loop
+        w, wp = self._wander, self._wander.params
+        state = np.array((w._steer, w._turn, w._last_v))
+        if self._noisy and self._noise_pos == len(self._noise_block):
+            self._noise_block = np.empty((_NOISE_BLOCK, self._n_rays))   # filled there
+            self._noise_pos = _NOISE_BLOCK
+        pos = np.array([self._noise_pos])
+        (self._x, self._y, self._th, self._wl, self._wr, self._touching, k_end) = \
+            kernels.wander(
+                self._x, self._y, self._th, self._wl, self._wr, self._touching, k, n, n_max,
+                state, np.array((wp.speed, wp.turn_speed, wp.avoid_distance, wp.steer_sigma,
+                                 wp.steer_max)), w._front, w._left, w._right,
+                self._ir_angles, self._planes, self._r, self._ir_range, self._sigmas,
+                self._noisy, self._rng, self._noise_rng, self._noise_block, pos, self._vmax,
+                self._b, self._dt,
+                self._kernel_boxes, self._half, self._tol, _N_BISECT, self._dest[0],
+                self._dest[1], self._goal_r2)
+        w._steer, w._turn, w._last_v = (float(v) for v in state)
+        self._noise_pos = int(pos[0])
+        self._tick += k_end - k
+        return self._x, self._y, self._th
+
+    def _run_wander_reference(self) -> tuple[float, float, float]:
+        """:meth:`_run_wander` as a Python loop of :meth:`observe`, ``WanderPolicy.act`` and
+        :meth:`_move` (the reference of the compiled loop, for the tests)."""
+        n = round(self.params.episode.wander_time / self._dt)
+        self._wander.reset()
+        self._k = 0
+        k = 0
         while k < n or (self._in_goal(self._x, self._y) and k < 10 * n + 1000):
             u = self._wander.act(self.observe())
             self._move(float(u[0]), float(u[1]))
@@ -530,10 +576,45 @@ class Simulator:
     # --------------------------------------------------------------------------- sensing
     def _draw_noise(self) -> np.ndarray:
         """The noise of one observation: IR beams then targets, shape (n_ir + T,) (zeros
-        without noise; nothing is drawn then)."""
+        without noise; nothing is drawn then): the next row of ``standard_normal`` draws
+        times the sensors' sigmas (drawn :data:`_NOISE_BLOCK` observations at a time)."""
         if self._noisy:
-            return self._noise_rng.standard_normal(self._n_rays) * self._sigmas
+            if self._noise_pos == len(self._noise_block):
+                self._noise_block = (self._noise_rng.standard_normal((_NOISE_BLOCK,
+                                                                       self._n_rays))
+                                     * self._sigmas)
+                self._noise_pos = 0
+            self._noise_pos += 1
+            return self._noise_block[self._noise_pos - 1]
         return self._no_noise
+
+    def _sensors(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """IR readings, camera bearings (destination, then landmarks) and the smallest IR
+        reading at the current time, computed once per step/reset (the noise is drawn
+        then)."""
+        if self._scan_tick != self._tick:
+            x, y, th = self._x, self._y, self._th
+            # ray casts of the IR beams (unit directions) and of the segments robot -> target
+            # (t in [0, 1]) through the boxes; a target is hidden when its segment enters a
+            # tall obstacle (the first boxes). Walls and short obstacles hide nothing.
+            ir, bearing = np.empty(self._n_ir), np.empty(len(self._targets_x))
+            d_o = kernels.sense(x, y, th, self._ir_angles, self._targets_x, self._targets_y,
+                                self._planes, self._n_tall, self._r, self._ir_range,
+                                self._draw_noise(), self._noisy, LOOPS, self._scan_dx,
+                                self._scan_dy, ir, bearing)
+            if self._cam_range is not None:
+                bearing[np.hypot(self._scan_dx, self._scan_dy) > self._cam_range] = np.nan
+            ir.flags.writeable = False
+            bearing.flags.writeable = False
+            self._scan, self._scan_tick = (ir, bearing, d_o), self._tick
+        return self._scan
+
+    def sense(self) -> tuple[float, float, np.ndarray]:
+        """What the modules read of :meth:`observe` at the current time, without making the
+        :class:`Observation`: ``(dest_bearing, d_o, landmark_bearings)`` (the same values, and
+        the same noise whichever of the two is called first)."""
+        _, bearing, d_o = self._sensors()
+        return float(bearing[0]), d_o, bearing[1:]
 
     def observe(self) -> Observation:
         """The full sensor model at the current time (cached until the next step/reset).
@@ -544,25 +625,9 @@ class Simulator:
         """
         if self._obs_tick == self._tick:
             return self._obs
-        x, y, th = self._x, self._y, self._th
-        noise = self._draw_noise()
-        # ray casts of the IR beams (unit directions) and of the segments robot -> target
-        # (t in [0, 1]) through the boxes; a target is hidden when its segment enters a tall
-        # obstacle (the first boxes). Walls and short obstacles hide nothing.
-        dx = self._targets_x - x
-        dy = self._targets_y - y
-        # kernels.scan into new arrays made here (a kernel returning arrays boxes them)
-        ir, bearing = np.empty(self._n_ir), np.empty(len(self._targets_x))
-        kernels.scan_into(x, y, th, self._ir_angles, self._targets_x, self._targets_y,
-                          np.arctan2(dy, dx), self._planes, self._n_tall, self._r,
-                          self._ir_range, noise, self._noisy, ir, bearing)
-        if self._cam_range is not None:
-            bearing[np.hypot(dx, dy) > self._cam_range] = np.nan
-        lm = bearing[1:]
-        ir.flags.writeable = False
-        lm.flags.writeable = False
+        ir, bearing, _ = self._sensors()
         wheels = np.array((self._wl, self._wr))
         wheels.flags.writeable = False
-        obs = Observation(self._k * self._dt, ir, float(bearing[0]), lm, wheels)
+        obs = Observation(self._k * self._dt, ir, float(bearing[0]), bearing[1:], wheels)
         self._obs, self._obs_tick = obs, self._tick
         return obs
