@@ -50,7 +50,7 @@ def test_action_sampling_draws_what_box_sample_draws():
     box = spaces.Box(env.action_space.low, env.action_space.high, dtype=np.float32)
     env.action_space.seed(11)
     box.seed(11)
-    for _ in range(200):
+    for _ in range(20000):
         a, b = env.action_space.sample(), box.sample()
         assert a.dtype == b.dtype == np.float32
         np.testing.assert_array_equal(a, b)

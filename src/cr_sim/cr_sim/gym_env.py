@@ -37,14 +37,26 @@ class _WheelBox(spaces.Box):
     """The action space: a bounded float32 :class:`gymnasium.spaces.Box` whose ``sample()``
     draws exactly what ``Box.sample()`` draws (one ``uniform(low, high)`` call on
     ``np_random``), without its per-call masks for unbounded coordinates (they cost more than
-    a simulator step)."""
+    a simulator step).
+
+    ``Generator.uniform(low, high)`` computes ``low + (high - low) * u`` in float64 with one
+    ``random()`` double u per element, in order; doing that arithmetic here on the same doubles
+    gives the same bits (tested against ``Box.sample``) in a sixth of the time: the
+    broadcasting of array bounds cost ~10 us per call.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._low64 = self.low.astype(np.float64)
+        self._range64 = self.high.astype(np.float64) - self._low64
 
     def sample(self, mask: None = None, probability: None = None) -> np.ndarray:
         """A uniform sample in ``[low, high]`` (``Box.sample`` for a bounded box)."""
         if mask is not None or probability is not None:
             return super().sample(mask, probability)     # raises as Box does
-        return self.np_random.uniform(low=self.low, high=self.high,
-                                      size=self.shape).astype(self.dtype)
+        # Generator.uniform(low, high, shape): low + (high - low) * U[0, 1), float64
+        u = self.np_random.random(self.shape)
+        return (self._low64 + self._range64 * u).astype(self.dtype)
 
 
 class CRNavEnv(gym.Env):
