@@ -31,6 +31,9 @@ import time
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_graph import children as graph_children  # noqa: E402
+
 MODULES = ('innate', 'view', 'place')
 
 
@@ -78,16 +81,7 @@ def run(seconds: float, warmup: float, single: bool, speed: float, params: list[
 
 def children(pid: int) -> dict[str, int]:
     """The graph's processes under ``clis run`` (``pid``): executable name -> pid."""
-    out = subprocess.run(['pgrep', '-P', str(pid), '-a'], capture_output=True,
-                         text=True).stdout
-    found = {'all': pid}
-    for line in out.splitlines():
-        child, cmd = line.split(' ', 1)
-        for token in cmd.split():
-            if '/lib/' in token:                     # install/PKG/lib/PKG/EXE
-                found[token.rsplit('/', 1)[-1]] = int(child)
-                break
-    return found
+    return {'all': pid, **graph_children(pid)}
 
 
 def load_marks(trace: Path) -> dict[str, dict[float, list[int]]]:
