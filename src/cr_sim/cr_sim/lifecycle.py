@@ -101,3 +101,4 @@ def realtime(priority: int, threads: Iterable[int] | None = None,
             return False, (f'real-time priority {priority} (SCHED_FIFO) {why}: running with '
                            'the default scheduling')
     return True, f'real-time priority: SCHED_FIFO {priority} on {done} threads'
+

@@ -309,9 +309,9 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     fast = CommandWait(node) if list(executor.get_nodes()) == [node] else None
     while rclpy.ok():
         if node.holding:                  # the clock stands still (learner gate, lockstep)
-            waiting_cmd = fast is not None and node.gate.state == 'command'
-            if not (waiting_cmd and fast.wait(0.005)):
-                executor.spin_once(timeout_sec=0.0 if waiting_cmd else 0.005)
+            if fast is None or node.gate.state != 'command' or not fast.wait(0.005):
+                executor.spin_once(timeout_sec=0.0 if fast is not None and
+                                   node.gate.state == 'command' else 0.005)
             node.check_hold()
             if period == 0:
                 next_wall = time.monotonic()
