@@ -81,3 +81,33 @@ def test_clis_run_gives_it_to_the_sensor_to_command_path_only(tmp_path):
                    'sim': 10}
     plan = plan_graph('async', 0, tmp_path, 0.0)
     assert not any('realtime' in k for c in plan.children for k in c.params)
+
+
+def test_a_shutdown_race_is_a_clean_stop_and_a_real_error_is_raised():
+    """:func:`reraise_unless_shut_down`: an executor error while rclpy's signal thread is
+    still shutting the context down is a clean stop; the same error in a running context is
+    raised."""
+    import threading
+
+    import rclpy
+    from cr_sim.lifecycle import reraise_unless_shut_down
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    threading.Timer(0.1, context.shutdown).start()     # the signal thread, a moment later
+    try:
+        raise RuntimeError('Unable to convert call argument')
+    except RuntimeError:
+        reraise_unless_shut_down(context=context)        # waits for it: a clean stop
+    assert not context.ok()
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        with pytest.raises(RuntimeError, match='a real error'):
+            try:
+                raise RuntimeError('a real error')
+            except RuntimeError:
+                reraise_unless_shut_down(grace=0.05, context=context)
+    finally:
+        context.shutdown()

@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 import gc
 import os
+import time
 
 import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -39,10 +40,17 @@ RCLError = _rclpy.RCLError
 SHUTDOWN_RACES = (RCLError, RuntimeError)
 
 
-def reraise_unless_shut_down() -> None:
-    """Inside an ``except SHUTDOWN_RACES:`` block: re-raise unless rclpy was shut down."""
-    if rclpy.ok():
-        raise
+def reraise_unless_shut_down(grace: float = 1.0, context: rclpy.Context | None = None) -> None:
+    """Inside an ``except SHUTDOWN_RACES:`` block: re-raise unless rclpy was shut down, or is
+    being shut down: rclpy's signal handler shuts the context down from a thread of its own,
+    and the executor may fail on its half-destroyed entities a moment before ``rclpy.ok()``
+    turns False (seen: the simulator's ``take_message`` at a SIGINT), so the context gets
+    ``grace`` seconds to finish. ``context``: rclpy's default one if None."""
+    deadline = time.monotonic() + grace
+    while rclpy.ok(context=context):
+        if time.monotonic() >= deadline:
+            raise
+        time.sleep(0.01)
 
 
 def settle_heap() -> None:
