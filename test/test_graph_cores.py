@@ -92,6 +92,60 @@ def selector(mode: str = 'episode', beta: float = 1.0, seed: int = 0) -> Selecto
                     np.random.default_rng(seed))
 
 
+WARM_UP_CHECK = """
+import dataclasses, json, sys
+import numba, numpy as np
+from clis_learner.core.config import load_clis_params
+from clis_learner.core.runner import Agent, run_episode
+from clis_modules.core.decider import Decider
+from clis_modules.core.modules import arena_map, condition_periods, make_module
+from cr_sim.core.arena import load_arena
+from cr_sim.core.sim import Simulator, load_sim_params
+
+def signatures():
+    return {f'{name}.{k}': len(v.signatures) for name, mod in list(sys.modules.items())
+            if name.startswith('clis_modules.') for k, v in vars(mod).items()
+            if isinstance(v, numba.core.registry.CPUDispatcher)}
+
+params, sim_params, arena = load_clis_params(), load_sim_params(), load_arena(None)
+twin = None
+for name, tau in condition_periods(params, 'async'):
+    d = Decider(make_module(params, name, tau, *arena_map(arena)), np.random.default_rng(0),
+                sim_params.robot.wheel_base)
+    if name == 'place':
+        twin = (d.module.localizer.belief.copy(), d.rng.bit_generator.state)
+    d.warm_up(len(arena.landmarks))
+    if name == 'place':
+        assert np.array_equal(twin[0], d.module.localizer.belief), 'warm_up changed the belief'
+        assert twin[1] == d.rng.bit_generator.state, 'warm_up drew from the generator'
+warm = signatures()
+sim_params = dataclasses.replace(sim_params, episode=dataclasses.replace(
+    sim_params.episode, time_limit=20.0))
+agent = Agent(params, 'async', arena, np.random.default_rng(1), sim_params.robot.wheel_base)
+sim = Simulator(arena, sim_params, np.random.default_rng(1))
+for _ in range(3):
+    run_episode(sim, agent, 'wander', None)
+print(json.dumps([sum(warm.values()), {k: v for k, v in signatures().items()
+                                        if v != warm.get(k, 0)}]))
+"""
+
+
+def test_decider_warm_up_compiles_every_kernel_a_run_calls(tmp_path):
+    """A module node warms its decider up before joining the graph: in a fresh interpreter,
+    after :meth:`Decider.warm_up` of each module, three Async episodes compile no kernel of
+    the modules' cores (a kernel compiled at a decision of a lockstep run takes seconds: the
+    arbiter would answer without the module), and the decider itself is left untouched."""
+    import json
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, '-c', WARM_UP_CHECK], capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    warmed, compiled_later = json.loads(out.stdout.strip().splitlines()[-1])
+    assert warmed > 0
+    assert compiled_later == {}, 'compiled during the run, not by warm_up'
+
+
 def test_selector_waits_for_every_module_then_draws_and_clips():
     sel = selector(beta=1e4)     # place has by far the best (1 - gamma) V: always chosen
     sel.begin_episode(10.0)
@@ -276,6 +330,37 @@ def test_episode_gate_learner_wait_and_lockstep():
     assert not gate.ended(2, now=5.0)
     action, warning = gate.poll(10.5)                         # the learner is gone
     assert action == 'start' and 'episode 2' in warning
+
+
+def test_episode_gate_waits_for_the_graph_then_the_learner():
+    """Graph gate: the first episode waits for the subscribers (the caller says when they are
+    matched), at most graph_timeout, then for the learner as before."""
+    from cr_sim.core.gate import EpisodeGate
+    gate = EpisodeGate(wait_for_learner=True, learner_timeout=5.0, graph_timeout=2.0)
+    assert not gate.first(now=0.0, ready=False) and gate.state == 'graph'
+    gate.on_progress(0, 0)                                    # the learner is up already
+    assert gate.poll(1.0, ready=False) == (None, None) and gate.holding
+    assert gate.poll(1.5, ready=True) == ('start', None) and not gate.holding
+    # not matched in time: start anyway, saying so; the learner gate still applies
+    gate = EpisodeGate(wait_for_learner=True, learner_timeout=5.0, graph_timeout=2.0)
+    assert not gate.first(now=0.0, ready=False)
+    action, warning = gate.poll(2.5, ready=False)
+    assert action is None and 'not connected within 2.0 s' in warning
+    assert gate.state == 'learner'
+    gate.on_progress(0, 0)
+    assert gate.poll(2.6) == ('start', None)
+    # nothing to wait for: as before
+    assert EpisodeGate().first(now=0.0, ready=True)
+
+
+def test_start_subscribers_are_parsed_with_errors_naming_the_key():
+    from cr_sim.core.params import ConfigError
+    from cr_sim.interface import parse_counts
+    assert parse_counts(('episode:5', '/clock:4', ''), 'k') == {'episode': 5, '/clock': 4}
+    assert parse_counts(('',), 'k') == {}
+    for bad in ('episode', 'episode:x', ':3', 'episode:-1'):
+        with pytest.raises(ConfigError, match=r"sim.node.start_subscribers\[0\].*TOPIC:COUNT"):
+            parse_counts((bad,), 'sim.node.start_subscribers')
 
 
 def test_tick_barrier_waits_for_the_decisions_due_then():

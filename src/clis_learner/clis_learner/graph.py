@@ -145,8 +145,16 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     if robot == 'bridge':
         _plan_bridge(plan, seed, speed, arena, device)
         return plan
+    # the first episode waits until DDS has matched the graph's subscribers of the robot
+    # interface (a message sent before is lost to them: the learner's first rewards, a
+    # module's first readings): every node follows the episodes and the clock, the modules
+    # read the camera, the learner (and the recorder) the rewards, the arbiter commands
+    nodes = len(modules) + 2 + bool(record)
+    matched = [f'episode:{nodes}', f'/clock:{len(modules) + 2}', f'camera:{len(modules)}',
+               f'reward:{1 + bool(record)}', 'cmd_vel:1']
     plan.children.append(Child('sim', 'cr_sim', 'sim', {
         'node.seed': seed, 'node.arena_file': arena, 'node.speed_factor': float(speed),
+        'node.start_subscribers': matched,
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
         **({'node.realtime_priority': realtime} if realtime else {})},

@@ -92,6 +92,9 @@ class ModuleNode(GraphNode):
         self.period = periods[kind]
         self.kind_index = MODULE_NAMES.index(kind)
         self.decider = Decider(module, self._episode_rng(0), load_sim_params().robot.wheel_base)
+        # compiled kernels ready before the node joins the graph (Decider.warm_up: a kernel
+        # compiled at the first decision would miss the lockstep's first instants)
+        self.decider.warm_up(len(arena.landmarks))
         self.t0: float | None = None            # start of the running episode (None: none)
         self.due = False                        # a decision waits for fresh readings
         self.last_t = -math.inf                 # stamp of the last decision's readings

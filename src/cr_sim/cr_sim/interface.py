@@ -12,8 +12,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile
 
 from cr_sim import conversions as conv
 from cr_sim.core.arena import Arena
+from cr_sim.core.params import ConfigError
 
-__all__ = ['open_robot_interface']
+__all__ = ['open_robot_interface', 'parse_counts', 'unmatched']
 
 
 def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamped: bool,
@@ -47,3 +48,36 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
         arena.wall_boxes(), arena.short_boxes(), arena.tall_boxes(),
         [(lm.x, lm.y) for lm in arena.landmarks],
         (arena.destination.x, arena.destination.y, arena.destination.goal_radius), map_frame))
+
+
+def parse_counts(entries: tuple[str, ...], where: str) -> dict[str, int]:
+    """``('TOPIC:COUNT', ...)`` -> ``{TOPIC: COUNT}`` ('' entries ignored); a bad entry raises
+    :class:`ConfigError` naming ``where[k]`` and the format."""
+    counts = {}
+    for k, entry in enumerate(entries):
+        if not entry:
+            continue
+        topic, _, n = entry.rpartition(':')
+        if not topic or not n.isdigit():
+            raise ConfigError(f"{where}[{k}] = {entry!r} must be 'TOPIC:COUNT' (e.g. "
+                              "'reward:1'), or '' for none")
+        counts[topic] = int(n)
+    return counts
+
+
+def unmatched(node: Node, counts: dict[str, int]) -> list[str]:
+    """Which of ``counts`` (topic -> how many) ``node`` has not matched yet: for a topic it
+    publishes, its subscriptions; for one it subscribes to, its publishers. E.g. ``['reward:
+    0 of 1']``; a topic the node neither publishes nor subscribes to is never matched."""
+    matched: dict[str, int] = {}
+    for pub in node.publishers:
+        matched[pub.topic_name] = matched.get(pub.topic_name, 0) + pub.get_subscription_count()
+    for sub in node.subscriptions:
+        n = node.count_publishers(sub.topic_name)
+        matched[sub.topic_name] = max(matched.get(sub.topic_name, 0), n)
+    out = []
+    for topic, want in counts.items():
+        have = matched.get(node.resolve_topic_name(topic), 0)
+        if have < want:
+            out.append(f'{topic}: {have} of {want}')
+    return out

@@ -30,7 +30,7 @@ from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
-from cr_sim.interface import open_robot_interface
+from cr_sim.interface import open_robot_interface, parse_counts, unmatched
 from cr_sim.lifecycle import SHUTDOWN_RACES, realtime, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
@@ -58,6 +58,11 @@ class SimNodeParams:
     wait_for_learner: bool = param(doc='after an episode, hold the clock until learner/progress '
                                    'reports it learned')
     learner_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for the learner')
+    start_subscribers: tuple[str, ...] = param(doc="'TOPIC:COUNT' entries: the first "
+                                               'episode waits until each topic has that many '
+                                               "subscribers (publishers for cmd_vel); [''] = "
+                                               'none')
+    graph_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for them')
     lockstep: bool = param(doc='after each instant, hold the clock until a command decided on '
                            'its readings arrives')
     command_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for that command')
@@ -99,7 +104,8 @@ class SimNode(Node):
         self.next_marker_t = 0.0
         self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout,
                                 self.cfg.lockstep, self.cfg.command_timeout,
-                                hold_periods=self.cfg.lockstep_periods)
+                                hold_periods=self.cfg.lockstep_periods,
+                                graph_timeout=self.cfg.graph_timeout)
         # sensor-to-command round trips of the held instants [wall s], the newest 100,000
         self.round_trips: deque[float] = deque(maxlen=100_000)
         self._round_trip_log = (open(self.cfg.round_trip_log, 'a', buffering=1 << 16)
@@ -109,7 +115,13 @@ class SimNode(Node):
                              self.cfg.wait_for_learner)
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
         self.ir_angles = np.deg2rad(self.params.sensors.ir_angles_deg)
-        if self.gate.first(time.monotonic()):
+        try:
+            self.start_subscribers = parse_counts(self.cfg.start_subscribers,
+                                                  'sim.node.start_subscribers')
+        except ConfigError as exc:
+            self.get_logger().fatal(str(exc))
+            raise
+        if self.gate.first(time.monotonic(), ready=self._graph_ready()):
             self._start_episode()
         self.get_logger().info(
             f'arena {self.cfg.arena_file or "config/arena.yaml"}, dt {self.params.episode.dt} s, '
@@ -195,9 +207,20 @@ class SimNode(Node):
         """Whether the clock stands still (:class:`~cr_sim.core.gate.EpisodeGate`)."""
         return self.gate.holding
 
+    def _graph_ready(self) -> bool:
+        """Whether the graph's subscribers of ``node.start_subscribers`` are matched."""
+        return not unmatched(self, self.start_subscribers)
+
     def check_hold(self) -> None:
         """Start the next episode or let the clock run once the gate opens."""
-        action, warning = self.gate.poll(time.monotonic())
+        ready = self.gate.state != 'graph' or self._graph_ready()
+        if self.gate.state == 'graph':
+            if ready:
+                self.get_logger().info('the graph is connected (node.start_subscribers)')
+            elif time.monotonic() >= self.gate.deadline:
+                self.get_logger().warning('not matched: ' + ', '.join(
+                    unmatched(self, self.start_subscribers)))
+        action, warning = self.gate.poll(time.monotonic(), ready)
         if warning:
             self.get_logger().warning(warning)
         if action == 'start':

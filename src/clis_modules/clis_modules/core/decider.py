@@ -18,6 +18,7 @@ decoded ROS messages drive it alike.
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import NamedTuple
 
@@ -173,6 +174,32 @@ class Decider:
         value = float(m.value_fn.w @ b)
         return Proposal(m.name, float(percept.t), b, u, mean, float(sigma), value,
                         self.version)
+
+    def warm_up(self, n_landmarks: int) -> None:
+        """Run a copy of this decider through every path of an episode once, so that the
+        compiled kernels it calls (numba, compiled lazily at their first call, or loaded from
+        the on-disk cache) are ready before the first real decision; this decider, its module
+        and its generator are left untouched.
+
+        A module node calls it before it joins the graph: a kernel compiled at the first
+        decision of a run takes seconds (a fresh clone has no cache), and a lockstep arbiter
+        waiting for that decision would give up on it and answer without the module, so the
+        run would no longer be the headless runner's (seen: every module missed t = 0 with a
+        cold cache). ``n_landmarks``: the length of ``Percept.landmark_bearings``.
+        """
+        twin = copy.deepcopy(self)
+        m = twin.module
+        twin.set_parameters(m.w.copy(), m.W.copy(), float(m.sigma), self.version)
+        seen = np.linspace(-1.0, 1.0, n_landmarks)
+        partly = seen.copy()
+        partly[::2] = math.nan
+        for _ in range(2):                   # (the second episode: after a reset)
+            twin.reset()
+            for k, (dest, lm) in enumerate([(0.3, seen), (math.nan, partly),
+                                             (-0.2, np.full(n_landmarks, math.nan))]):
+                twin.on_wheels(0.1, 0.12, 0.05)
+                twin.on_wheel_steps(np.array([[0.1, 0.12], [0.08, 0.1]]), 0.05)
+                twin.decide(Percept(0.05 * k, dest, 0.4, lm))
 
     def set_parameters(self, w: ArrayLike, W: ArrayLike, sigma: float,  # noqa: N803
                        version: int) -> None:

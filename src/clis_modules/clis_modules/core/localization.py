@@ -317,7 +317,9 @@ class MarkovLocalizer:
             Bearing of each landmark relative to the heading [rad]; NaN = not seen (no
             information). Nothing seen: the belief is left unchanged.
         """
-        z = np.asarray(landmark_bearings, dtype=np.float64).reshape(-1)
+        # a fresh writable C array whatever the caller passes (a simulator observation is
+        # read-only): one compiled signature of _update_into for every caller
+        z = np.array(landmark_bearings, dtype=np.float64).reshape(-1)
         if z.shape[0] != len(self.landmarks_xy):
             raise ValueError(f'expected {len(self.landmarks_xy)} landmark bearings, '
                              f'got {z.shape[0]}')

@@ -8,6 +8,11 @@ same two things explicitly, or it outruns the graph (a tick takes microseconds):
   the next episode starts only once the learner has reported that episode on its progress
   topic (or ``learner_timeout`` wall seconds passed). The start then announces the parameter
   version the learner reached, so that the modules wait for those parameters.
+- **graph gate** (before the first episode): the first episode starts only once the node's
+  topics have the subscribers the graph will have (the caller says when: ``ready``), or
+  ``graph_timeout`` wall seconds passed. A message published before DDS has matched a
+  subscriber is not delivered to it: a learner matched late would miss the first rewards and
+  not learn the episode, a module the first instants.
 - **lockstep** (``lockstep``): after publishing the readings of an instant, the clock stands
   there until a command decided on readings of that instant arrives (its stamp is at or after
   it), or ``command_timeout`` wall seconds passed. The controller (the CLIS arbiter) answers
@@ -50,11 +55,14 @@ class EpisodeGate:
     hold_periods : tuple of float
         Lockstep holds only at ``t_0 + l tau`` for these ``tau`` [s]; empty (or a 0): at every
         instant.
+    graph_timeout : float
+        Graph gate: wall seconds to wait for the subscribers before the first episode.
 
     Attributes
     ----------
     state : str
-        ``'run'`` (the clock runs), ``'learner'`` (waiting to start the next episode) or
+        ``'run'`` (the clock runs), ``'graph'`` (waiting for the graph's subscribers before
+        the first episode), ``'learner'`` (waiting to start the next episode) or
         ``'command'`` (waiting for the command of the instant just published).
     free : bool
         Lockstep suspended after a timeout, until the next command.
@@ -68,6 +76,7 @@ class EpisodeGate:
     command_timeout: float = 2.0
     resend_period: float = 0.2
     hold_periods: tuple[float, ...] = ()
+    graph_timeout: float = 30.0
 
     def __post_init__(self) -> None:
         self.state = 'run'
@@ -85,9 +94,13 @@ class EpisodeGate:
         """Whether the clock must stand still."""
         return self.state != 'run'
 
-    def first(self, now: float) -> bool:
-        """Before the first episode: whether to start it at once (else wait for the learner,
-        whose first report, episode 0, says it is up)."""
+    def first(self, now: float, ready: bool = True) -> bool:
+        """Before the first episode: whether to start it at once. Not before the graph is
+        ``ready`` (its subscribers matched; :meth:`poll` is told when), then not before the
+        learner's first report (episode 0: it is up)."""
+        if not ready:
+            self.state, self.deadline = 'graph', now + self.graph_timeout
+            return False
         return self.ended(0, now)
 
     def ended(self, episode: int, now: float) -> bool:
@@ -142,10 +155,17 @@ class EpisodeGate:
         """The learner's parameter version (announced at the next start)."""
         return self.learned[1]
 
-    def poll(self, now: float) -> tuple[str | None, str | None]:
+    def poll(self, now: float, ready: bool = True) -> tuple[str | None, str | None]:
         """At wall time ``now``: ``(action, warning)``; action ``'start'`` = start the next
         episode now, ``'go'`` = let the clock run, ``'resend'`` = publish the readings of the
-        instant again, None = keep waiting. ``warning`` says which wait timed out."""
+        instant again, None = keep waiting. ``warning`` says which wait timed out. ``ready``:
+        whether the graph's subscribers are matched now (graph gate)."""
+        if self.state == 'graph':
+            if not ready and now < self.deadline:
+                return None, None
+            warning = None if ready else (f'the graph was not connected within '
+                                          f'{self.graph_timeout} s: starting anyway')
+            return ('start' if self.ended(0, now) else None), warning
         if self.state == 'learner':
             if self.learned[0] >= self.episode:
                 self.state = 'run'
