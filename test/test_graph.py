@@ -146,6 +146,8 @@ def test_clis_run_learns_and_writes_the_curve(async_run):
     for name in ('checkpoint.npz', 'curve.csv', 'curve.png', 'selection.png', 'logs/sim.log'):
         assert (out / name).is_file(), name
     assert '4 episodes learned' in async_run['text']
+    # no node was late (start-up included: the graph gate, the modules' warm-up)
+    assert 'lockstep timeouts' not in async_run['text'], async_run['text']
 
 
 def test_a_rerun_with_the_same_seed_is_bit_identical(async_run, tmp_path):

@@ -19,7 +19,10 @@ restarts gets them at once; ``version`` = episodes learned), the episode's row i
 ``OUT/episodes.csv`` and published on ``~/progress`` (diagnostic_msgs/DiagnosticArray,
 transient local: episode, reached, return, who acted, Pr(i|x_0), diagnostics). An episode whose
 start the learner did not see (it started late or was restarted) is not learned; its progress
-says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint.
+says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint. The learner
+reports ready (progress of episode 0, which a simulator with ``node.wait_for_learner``
+waits for before the first episode) once DDS has found a publisher of every stream it
+reads, or after ``learner_node.connect_timeout`` s.
 
 Wakeups: the rewards (one per tick) are taken from their queue when another record arrives
 (at least one per decision instant), every 0.1 s of wall time, and while an ended episode
@@ -41,6 +44,7 @@ from clis_modules.core.modules import arena_map, make_modules
 from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from clis_modules.module_node import END_EVENTS, LATCHED, PARAMS_QOS
 from cr_sim.core.params import ConfigError, dataclass, param
+from cr_sim.interface import unmatched
 from cr_sim.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
@@ -70,6 +74,8 @@ class LearnerNodeParams:
     close_timeout: float = param(0.0, 600.0, doc='wall seconds to wait for the records of an '
                                   'ended episode')
     close_grace: float = param(0.0, 10.0, doc='wall seconds to wait for records in flight')
+    connect_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for a publisher of '
+                                   'every stream before reporting ready')
 
 
 class LearnerNode(GraphNode):
@@ -118,12 +124,31 @@ class LearnerNode(GraphNode):
         self.closer.cancel()
         self.clock_on_demand()
         self._publish_params(0.0)
-        # "up": the simulator's learner gate starts the first episode on this report
-        self._progress({'episode': 0, 'learned': 0, 'event': 'ready'}, 0.0)
+        # "up": the simulator's learner gate starts the first episode on this report, so it
+        # waits until DDS has found a publisher of every stream (a record published before
+        # is never delivered: the arbiter's first draw, seen lost on a loaded machine)
+        self.streams_of = {topic: 1 for topic in
+                           [f'{n}/proposal' for n in self.names] + [
+                               'arbiter/action', 'arbiter/selection', 'reward', 'episode']}
+        self.connect_deadline = time.monotonic() + self.cfg.connect_timeout
+        self.connecting = self.create_timer(0.02, self._on_connecting, clock=steady)
+        self._on_connecting()
         self.defer_housekeeping()
         self.get_logger().info(
             f'learner: condition {self.graph.condition}, modules {", ".join(self.names)}, '
             f'correction {self.clis.learner.correction}, out {self.out or "-"}')
+
+    def _on_connecting(self) -> None:
+        """Report ready once every stream has a publisher (or ``connect_timeout`` passed)."""
+        missing = unmatched(self, self.streams_of)
+        if missing and time.monotonic() < self.connect_deadline:
+            return
+        if missing:
+            self.get_logger().warning(
+                f'no publisher within {self.cfg.connect_timeout} s of: {", ".join(missing)}: '
+                'ready anyway')
+        self.connecting.cancel()
+        self._progress({'episode': 0, 'learned': 0, 'event': 'ready'}, 0.0)
 
     @property
     def version(self) -> int:
