@@ -24,12 +24,13 @@ reports ready (progress of episode 0, which a simulator with ``node.wait_for_lea
 waits for before the first episode) once DDS has found a publisher of every stream it
 reads, or after ``learner_node.connect_timeout`` s.
 
-Wakeups: the rewards (one per tick) are taken from their queue when another record arrives
-(at least one per decision instant), every 0.1 s of wall time, and while an ended episode
-waits for its records (every 5 ms), not one by one
-(:class:`~clis_modules.graph_node.OnDemand`); the learner reads no clock, so under sim time it
-takes ``/clock`` only on demand too (never). It is woken by the decisions, the actions and the
-episode events, not at every tick.
+Wakeups: the learner is off the sensor-to-command path, and a wakeup of its own at a decision
+instant would take a core from the module or the arbiter that is on it. So the streams
+(rewards, proposals, actions, draws) are not taken one by one: they wait in their queues
+(:class:`~clis_modules.graph_node.OnDemand`) and are taken every 0.1 s of wall time, at each
+episode event, and while an ended episode waits for its records (every 5 ms). The learner
+reads no clock, so under sim time it takes ``/clock`` only on demand too (never). It is woken
+by the episode events and its wall timer, not by the decisions nor at every tick.
 """
 
 from __future__ import annotations
@@ -106,16 +107,22 @@ class LearnerNode(GraphNode):
         self.pub_params = {name: self.create_publisher(JointState, f'{name}/params',
                                                        PARAMS_QOS) for name in self.names}
         self.pub_progress = self.create_publisher(DiagnosticArray, '~/progress', PROGRESS_QOS)
-        for name in self.names:
-            self.create_subscription(JointState, f'{name}/proposal', self._on_proposal,
-                                     rconv.STREAM_DEPTH)
-        self.create_subscription(JointState, 'arbiter/action', self._on_action, rconv.STREAM_DEPTH)
-        self.create_subscription(JointState, 'arbiter/selection', self._on_selection,
-                                 rconv.STREAM_DEPTH)
-        # the rewards wait in their queue (1000 deep: 50 s of sim time) until taken (docstring)
+        # the streams wait in their queues (1000 deep: 50 s of sim time of rewards, 250 s of
+        # the fastest module's decisions) until taken (module docstring)
+        on_demand = OnDemand()
+        self.streams = [
+            *[(self.create_subscription(JointState, f'{name}/proposal', self._on_proposal,
+                                        rconv.STREAM_DEPTH, callback_group=on_demand),
+               self._on_proposal) for name in self.names],
+            (self.create_subscription(JointState, 'arbiter/action', self._on_action,
+                                      rconv.STREAM_DEPTH, callback_group=on_demand),
+             self._on_action),
+            (self.create_subscription(JointState, 'arbiter/selection', self._on_selection,
+                                      rconv.STREAM_DEPTH, callback_group=on_demand),
+             self._on_selection)]
         self.sub_reward = self.create_subscription(Vector3Stamped, 'reward', self._on_reward,
-                                                   rconv.STREAM_DEPTH,
-                                                   callback_group=OnDemand())
+                                                   rconv.STREAM_DEPTH, callback_group=on_demand)
+        self.streams.append((self.sub_reward, self._on_reward))
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(0.1, self._on_wall, clock=steady)
@@ -157,14 +164,13 @@ class LearnerNode(GraphNode):
 
     # ------------------------------------------------------------------ streams
 
-    def _take_rewards(self) -> None:
-        """Take the rewards waiting in their queue."""
-        msgs = take_all(self.sub_reward)
-        for msg in msgs:
-            self._on_reward(msg)
+    def _take_streams(self) -> None:
+        """Take the records waiting in the streams' queues (any order: the stream sorts)."""
+        for sub, on_record in self.streams:
+            for msg in take_all(sub):
+                on_record(msg)
 
     def _on_proposal(self, msg: JointState) -> None:
-        self._take_rewards()
         self.record_wall = time.monotonic()
         try:
             self.stream.proposal(mconv.proposal_from_msg(msg))
@@ -172,7 +178,6 @@ class LearnerNode(GraphNode):
             self.get_logger().error(f'ignored proposal: {exc}')
 
     def _on_action(self, msg: JointState) -> None:
-        self._take_rewards()
         self.record_wall = time.monotonic()
         try:
             self.stream.action(*mconv.action_from_msg(msg))
@@ -192,7 +197,7 @@ class LearnerNode(GraphNode):
         self.stream.reward(t, r)
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
-        self._take_rewards()
+        self._take_streams()
         t, event, values = rconv.episode_from_msg(msg)
         index = int(values.get('episode', -1))
         if event == 'start':
@@ -210,7 +215,7 @@ class LearnerNode(GraphNode):
                 self.closer.reset()               # wait for its records
 
     def _on_wall(self) -> None:
-        self._take_rewards()
+        self._take_streams()
         c = self.stream.closing
         if c is None:
             self.closer.cancel()
