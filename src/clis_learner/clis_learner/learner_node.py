@@ -134,7 +134,7 @@ class LearnerNode(GraphNode):
         # "up": the simulator's learner gate starts the first episode on this report, so it
         # waits until DDS has found a publisher of every stream (a record published before
         # is never delivered: the arbiter's first draw, seen lost on a loaded machine)
-        self.streams_of = {topic: 1 for topic in
+        self.stream_topics = {topic: 1 for topic in
                            [f'{n}/proposal' for n in self.names] + [
                                'arbiter/action', 'arbiter/selection', 'reward', 'episode']}
         self.connect_deadline = time.monotonic() + self.cfg.connect_timeout
@@ -147,7 +147,7 @@ class LearnerNode(GraphNode):
 
     def _on_connecting(self) -> None:
         """Report ready once every stream has a publisher (or ``connect_timeout`` passed)."""
-        missing = unmatched(self, self.streams_of)
+        missing = unmatched(self, self.stream_topics)
         if missing and time.monotonic() < self.connect_deadline:
             return
         if missing:
