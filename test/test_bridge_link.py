@@ -66,3 +66,30 @@ def test_udp_links_refuse_addresses_off_the_loopback():
     with pytest.raises(ValueError, match='udp://HOST:PORT'):
         open_link('udp://127.0.0.1')
     open_link('udp://127.0.0.1:9').close()
+
+
+def test_the_listening_end_answers_whoever_wrote_last():
+    """The emulator's end of a UDP link answers the bridge's newest socket: a bridge that
+    reopened its link (new socket, new port) after a timeout is heard and answered; the old
+    socket gets nothing more."""
+    import socket as _socket
+
+    from cr_bridge.transport import UdpLink
+    with _socket.socket(_socket.AF_INET, _socket.SOCK_DGRAM) as s:
+        s.bind(('127.0.0.1', 0))
+        port = s.getsockname()[1]
+    device = UdpLink(f'udp://127.0.0.1:{port}', listen=True)
+    first, second = (open_link(f'udp://127.0.0.1:{port}') for _ in range(2))
+    try:
+        first.write(b'hello 1')
+        assert device.read(1.0) == b'hello 1'
+        device.write(b'frame 1')
+        assert first.read(1.0) == b'frame 1'
+        second.write(b'hello 2')                       # the bridge reopened its link
+        assert device.read(1.0) == b'hello 2'
+        device.write(b'frame 2')
+        assert second.read(1.0) == b'frame 2'
+        assert first.read(0.2) == b''                  # the closed one gets nothing more
+    finally:
+        for link in (device, first, second):
+            link.close()

@@ -74,6 +74,7 @@ class UdpLink(Link):
             raise LinkError(f'{url}: not a loopback address; set allow_network to talk to '
                             'another machine')
         self.url = url
+        self.listen = listen
         family = socket.AF_INET6 if ':' in host else socket.AF_INET
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
         self.sock.setblocking(False)
@@ -103,10 +104,15 @@ class UdpLink(Link):
             ready, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
             while ready:
                 data, addr = self.sock.recvfrom(2048)
-                if self.peer is None or addr == self.peer:
-                    chunks.append(data)
-                if self.peer is None:
+                if self.listen and addr != self.peer:
+                    # a listening end answers whoever wrote last: a bridge that reopened its
+                    # link (a new socket, a new port) is heard, and the frames go to it, not
+                    # to the closed one (the emulator kept its first peer, and a bridge that
+                    # had timed out once before the device's first frame never connected)
                     self.peer = addr
+                    chunks.clear()
+                if addr == self.peer:
+                    chunks.append(data)
                 ready, _, _ = select.select([self.sock], [], [], 0.0)
         except BlockingIOError:
             pass
