@@ -359,7 +359,7 @@ def test_start_subscribers_are_parsed_with_errors_naming_the_key():
     assert parse_counts(('episode:5', '/clock:4', ''), 'k') == {'episode': 5, '/clock': 4}
     assert parse_counts(('',), 'k') == {}
     for bad in ('episode', 'episode:x', ':3', 'episode:-1'):
-        with pytest.raises(ConfigError, match=r"sim.node.start_subscribers\[0\].*TOPIC:COUNT"):
+        with pytest.raises(ConfigError, match=r'sim.node.start_subscribers\[0\].*TOPIC:COUNT'):
             parse_counts((bad,), 'sim.node.start_subscribers')
 
 

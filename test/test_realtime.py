@@ -89,8 +89,8 @@ def test_a_shutdown_race_is_a_clean_stop_and_a_real_error_is_raised():
     raised."""
     import threading
 
-    import rclpy
     from cr_sim.lifecycle import reraise_unless_shut_down
+    import rclpy
 
     context = rclpy.Context()
     rclpy.init(context=context)
