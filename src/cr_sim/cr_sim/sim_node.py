@@ -8,6 +8,11 @@ ground-truth ``odom``, ``markers`` and ``/clock``; subscribes to ``cmd_vel``; of
 missed periods (DESIGN.md §8), so one tick of sim time (50 ms) must stay below the shortest
 module period (250 ms): it does by construction.
 
+Gates (:mod:`cr_sim.core.gate`): with ``node.start_subscribers`` the first episode waits until
+the graph's subscribers of the robot interface are matched (a message published before is
+never delivered to them); with ``node.wait_for_learner`` each episode waits for the learner;
+with ``node.lockstep`` each decision instant waits for its command.
+
 Safety: every command goes through :func:`cr_sim.core.robot.clamp_wheels` (NaN/inf -> 0,
 clipped to the wheel limit); a command older than ``node.watchdog`` seconds of sim time is
 replaced by a stop.
