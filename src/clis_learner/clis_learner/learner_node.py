@@ -110,20 +110,17 @@ class LearnerNode(GraphNode):
         # the streams wait in their queues (1000 deep: 50 s of sim time of rewards, 250 s of
         # the fastest module's decisions) until taken (module docstring)
         on_demand = OnDemand()
-        self.streams = [
-            *[(self.create_subscription(JointState, f'{name}/proposal', self._on_proposal,
-                                        rconv.STREAM_DEPTH, callback_group=on_demand),
-               self._on_proposal) for name in self.names],
-            (self.create_subscription(JointState, 'arbiter/action', self._on_action,
-                                      rconv.STREAM_DEPTH, callback_group=on_demand),
-             self._on_action),
-            (self.create_subscription(JointState, 'arbiter/selection', self._on_selection,
-                                      rconv.STREAM_DEPTH, callback_group=on_demand),
-             self._on_selection)]
-        self.sub_reward = self.create_subscription(Vector3Stamped, 'reward', self._on_reward,
-                                                   rconv.STREAM_DEPTH, callback_group=on_demand)
-        self.streams.append((self.sub_reward, self._on_reward))
-        self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
+
+        def stream(msg_type, topic: str, callback):
+            return self.create_subscription(msg_type, topic, callback, rconv.STREAM_DEPTH,
+                                            callback_group=on_demand)
+        self.streams = [*[stream(JointState, f'{name}/proposal', self._on_proposal)
+                          for name in self.names],
+                        stream(JointState, 'arbiter/action', self._on_action),
+                        stream(JointState, 'arbiter/selection', self._on_selection),
+                        stream(Vector3Stamped, 'reward', self._on_reward)]
+        self.sub_episode = self.create_subscription(DiagnosticArray, 'episode',
+                                                    self._on_episode, LATCHED)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(0.1, self._on_wall, clock=steady)
         # while an ended episode waits for its records
@@ -134,9 +131,7 @@ class LearnerNode(GraphNode):
         # "up": the simulator's learner gate starts the first episode on this report, so it
         # waits until DDS has found a publisher of every stream (a record published before
         # is never delivered: the arbiter's first draw, seen lost on a loaded machine)
-        self.stream_topics = {topic: 1 for topic in
-                           [f'{n}/proposal' for n in self.names] + [
-                               'arbiter/action', 'arbiter/selection', 'reward', 'episode']}
+        self.stream_topics = {sub.topic_name: 1 for sub in [*self.streams, self.sub_episode]}
         self.connect_deadline = time.monotonic() + self.cfg.connect_timeout
         self.connecting = self.create_timer(0.02, self._on_connecting, clock=steady)
         self._on_connecting()
@@ -166,9 +161,9 @@ class LearnerNode(GraphNode):
 
     def _take_streams(self) -> None:
         """Take the records waiting in the streams' queues (any order: the stream sorts)."""
-        for sub, on_record in self.streams:
+        for sub in self.streams:
             for msg in take_all(sub):
-                on_record(msg)
+                sub.callback(msg)
 
     def _on_proposal(self, msg: JointState) -> None:
         self.record_wall = time.monotonic()

@@ -25,7 +25,6 @@ into ``PATH.1``, ``PATH.2``... when PATH holds a bag already (a restarted record
 from __future__ import annotations
 
 import importlib
-import os
 from pathlib import Path
 import time
 from typing import Any
@@ -45,6 +44,7 @@ from rclpy.qos import (
 
 from clis_learner.core.bag import BagError, BagWriter, qos_dict
 from clis_learner.core.config import ClisParams, params_hash
+from clis_learner.ros_env import RECORDER_PROFILE_NAME, use_profile
 
 __all__ = ['RecorderParams', 'RecorderNode', 'GRAPH_TOPICS', 'LATCHED_TOPICS', 'qos_to_dict',
            'qos_from_dict', 'message_class', 'main']
@@ -279,11 +279,7 @@ def use_recorder_profile() -> None:
     """Load ``config/fastdds_recorder.xml`` (UDP loopback with a large receive buffer: no
     loss when this process waits for a core) instead of the project's loopback profile; a
     profile of the user's own is kept."""
-    current = os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE', '')
-    if Path(current).name in ('fastdds_loopback.xml', 'fastdds_graph.xml'):
-        ours = Path(current).with_name('fastdds_recorder.xml')
-        if ours.is_file():
-            os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(ours)
+    use_profile(RECORDER_PROFILE_NAME)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -25,6 +25,9 @@ PROFILE_VAR = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 PROFILE_NAME = 'fastdds_loopback.xml'
 #: The graph's variant (shared memory carries the user data): ``clis run`` loads it
 GRAPH_PROFILE_NAME = 'fastdds_graph.xml'
+#: The recorder's variant (UDP loopback with a large receive buffer)
+RECORDER_PROFILE_NAME = 'fastdds_recorder.xml'
+OUR_PROFILES = (PROFILE_NAME, GRAPH_PROFILE_NAME, RECORDER_PROFILE_NAME)
 #: Fast DDS maps domain d to UDP ports 7400 + 250 d (+ offsets); ids above ~100 collide with
 #: Linux ephemeral ports, so runs draw from this range.
 DOMAIN_RANGE = (1, 100)
@@ -100,18 +103,24 @@ def apply_ros_env(env: MutableMapping[str, str] | None = None, *, network: bool 
     return env
 
 
-def use_graph_profile(env: MutableMapping[str, str] | None = None) -> MutableMapping[str, str]:
-    """For the CLIS graph's nodes (``clis run``): load ``config/fastdds_graph.xml`` (the same
-    loopback-only rules, shared memory carrying the user data between the graph's processes)
-    instead of the project's loopback profile; a profile of the user's own (or none,
-    ``--network``) is kept. Returns ``env`` (default ``os.environ``)."""
+def use_profile(name: str, env: MutableMapping[str, str] | None = None
+                ) -> MutableMapping[str, str]:
+    """Load the project's profile ``config/NAME`` instead of the project's profile in force
+    (one of :data:`OUR_PROFILES`; the same loopback-only rules in each); a profile of the
+    user's own (or none, ``--network``) is kept. Returns ``env`` (default ``os.environ``)."""
     env = os.environ if env is None else env
     current = env.get(PROFILE_VAR, '')
-    if Path(current).name == PROFILE_NAME:
-        ours = Path(current).with_name(GRAPH_PROFILE_NAME)
+    if Path(current).name in OUR_PROFILES:
+        ours = Path(current).with_name(name)
         if ours.is_file():
             env[PROFILE_VAR] = str(ours)
     return env
+
+
+def use_graph_profile(env: MutableMapping[str, str] | None = None) -> MutableMapping[str, str]:
+    """For the CLIS graph's nodes (``clis run``): ``config/fastdds_graph.xml``, shared memory
+    carrying the user data between the graph's processes (:func:`use_profile`)."""
+    return use_profile(GRAPH_PROFILE_NAME, env)
 
 
 def describe(env: MutableMapping[str, str] | None = None) -> dict[str, str]:

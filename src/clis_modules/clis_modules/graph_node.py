@@ -34,7 +34,7 @@ from typing import Any
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.lifecycle import SHUTDOWN_RACES, realtime, reraise_unless_shut_down, settle_heap
+from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.trace import dump as dump_trace
@@ -282,8 +282,7 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
     executor.add_node(node)
     settle_heap()
     if node.control_path and node.graph.realtime_priority:
-        ok, said = realtime(node.graph.realtime_priority)
-        (node.get_logger().info if ok else node.get_logger().warning)(said)
+        realtime_logged(node.graph.realtime_priority, node.get_logger())
     profiler = start_profile()
     try:
         executor.spin()

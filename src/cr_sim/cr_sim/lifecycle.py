@@ -33,7 +33,8 @@ import time
 import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['SHUTDOWN_RACES', 'RCLError', 'realtime', 'reraise_unless_shut_down', 'settle_heap']
+__all__ = ['SHUTDOWN_RACES', 'RCLError', 'realtime', 'realtime_logged',
+           'reraise_unless_shut_down', 'settle_heap']
 
 RCLError = _rclpy.RCLError
 #: What the executor may raise when the context is shut down under it.
@@ -110,3 +111,10 @@ def realtime(priority: int, threads: Iterable[int] | None = None,
                            'the default scheduling')
     return True, f'real-time priority: SCHED_FIFO {priority} on {done} threads'
 
+
+def realtime_logged(priority: int, logger) -> bool:
+    """:func:`realtime` for a node's process, saying what happened on the node's ``logger``
+    (info if granted, warning if not); whether it was granted."""
+    ok, said = realtime(priority)
+    (logger.info if ok else logger.warning)(said)
+    return ok

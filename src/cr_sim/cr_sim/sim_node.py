@@ -36,7 +36,7 @@ from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param,
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
-from cr_sim.lifecycle import SHUTDOWN_RACES, realtime, reraise_unless_shut_down, settle_heap
+from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.trace import dump as dump_trace
@@ -126,7 +126,7 @@ class SimNode(Node):
         except ConfigError as exc:
             self.get_logger().fatal(str(exc))
             raise
-        if self.gate.first(time.monotonic(), ready=self._graph_ready()):
+        if self.gate.first(time.monotonic(), ready=not unmatched(self, self.start_subscribers)):
             self._start_episode()
         self.get_logger().info(
             f'arena {self.cfg.arena_file or "config/arena.yaml"}, dt {self.params.episode.dt} s, '
@@ -212,19 +212,16 @@ class SimNode(Node):
         """Whether the clock stands still (:class:`~cr_sim.core.gate.EpisodeGate`)."""
         return self.gate.holding
 
-    def _graph_ready(self) -> bool:
-        """Whether the graph's subscribers of ``node.start_subscribers`` are matched."""
-        return not unmatched(self, self.start_subscribers)
-
     def check_hold(self) -> None:
         """Start the next episode or let the clock run once the gate opens."""
-        ready = self.gate.state != 'graph' or self._graph_ready()
-        if self.gate.state == 'graph':
+        ready = True
+        if self.gate.state == 'graph':           # node.start_subscribers not all matched yet
+            missing = unmatched(self, self.start_subscribers)
+            ready = not missing
             if ready:
                 self.get_logger().info('the graph is connected (node.start_subscribers)')
             elif time.monotonic() >= self.gate.deadline:
-                self.get_logger().warning('not matched: ' + ', '.join(
-                    unmatched(self, self.start_subscribers)))
+                self.get_logger().warning('not matched: ' + ', '.join(missing))
         action, warning = self.gate.poll(time.monotonic(), ready)
         if warning:
             self.get_logger().warning(warning)
@@ -337,9 +334,9 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     fast = CommandWait(node) if list(executor.get_nodes()) == [node] else None
     while rclpy.ok():
         if node.holding:                  # the clock stands still (learner gate, lockstep)
-            if fast is None or node.gate.state != 'command' or not fast.wait(0.005):
-                executor.spin_once(timeout_sec=0.0 if fast is not None and
-                                   node.gate.state == 'command' else 0.005)
+            waiting_cmd = fast is not None and node.gate.state == 'command'
+            if not (waiting_cmd and fast.wait(0.005)):
+                executor.spin_once(timeout_sec=0.0 if waiting_cmd else 0.005)
             node.check_hold()
             if period == 0:
                 next_wall = time.monotonic()
@@ -376,8 +373,7 @@ def main(args: list[str] | None = None) -> None:
     executor.add_node(node)
     settle_heap()
     if node.cfg.realtime_priority:
-        ok, said = realtime(node.cfg.realtime_priority)
-        (node.get_logger().info if ok else node.get_logger().warning)(said)
+        realtime_logged(node.cfg.realtime_priority, node.get_logger())
     profiler = start_profile()
     try:
         run(node, executor)
