@@ -456,6 +456,26 @@ def test_tick_barrier_does_not_wait_for_a_module_known_dead():
     assert barrier.missing == set()
 
 
+def test_tick_barrier_waits_again_for_a_module_alive_again():
+    """A liveliness lease that lapsed while the machine was busy (seen at start-up, before
+    the first episode) is not a death: once the module is alive again, its decisions are
+    waited for, so the run stays the headless runner's."""
+    from clis_modules.core.lockstep import TickBarrier
+    barrier = TickBarrier(['innate', 'view'], [0.25, 0.5], timeout=5.0)
+
+    def p(module, t):
+        return Proposal(module, t, np.zeros(1), np.zeros(2), np.zeros(2), 0.1, 0.0, 0)
+    barrier.lost('view')                                      # before the first episode
+    barrier.alive('view')
+    barrier.begin_episode(0.0)
+    barrier.on_tick(0.0, now=0.0)
+    barrier.on_proposal(p('innate', 0.0))
+    assert barrier.ready(0.1) == [] and barrier.waiting_for == ['view']
+    barrier.on_proposal(p('view', 0.0))
+    [(t, ps)] = barrier.ready(0.2)
+    assert t == 0.0 and sorted(q.module for q in ps) == ['innate', 'view']
+
+
 def test_lockstep_holds_only_at_decision_instants_when_given_the_periods():
     """With the modules' periods the clock stands only at t0 + l tau_i (the command cannot
     change between two decisions); without them, at every instant."""

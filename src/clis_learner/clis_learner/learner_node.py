@@ -133,7 +133,7 @@ class LearnerNode(GraphNode):
         # is never delivered: the arbiter's first draw, seen lost on a loaded machine)
         self.stream_topics = {sub.topic_name: 1 for sub in [*self.streams, self.sub_episode]}
         self.connect_deadline = time.monotonic() + self.cfg.connect_timeout
-        self.connecting = self.create_timer(0.02, self._on_connecting, clock=steady)
+        self.connecting = self.create_timer(0.05, self._on_connecting, clock=steady)
         self._on_connecting()
         self.defer_housekeeping()
         self.get_logger().info(

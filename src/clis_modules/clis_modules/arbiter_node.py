@@ -166,12 +166,16 @@ class ArbiterNode(GraphNode):
 
     def _on_liveliness(self, name: str, alive: int) -> None:
         """No live publisher of ``name``'s proposals (its process died): stop waiting for it
-        at once (it rejoins with its next proposal)."""
+        at once (it rejoins with its next proposal). Live again (a lease that lapsed while
+        the machine was busy, e.g. at start-up, or a restarted module): wait for it again."""
         if alive == 0:
             self.get_logger().warning(f'{name} is gone (liveliness lost): not waiting for it')
             if self.barrier is not None:
                 self.barrier.lost(name)
                 self._advance()
+        elif self.barrier is not None and self.barrier.index[name] in self.barrier.missing:
+            self.get_logger().info(f'{name} is alive again: waiting for its decisions')
+            self.barrier.alive(name)
 
     def _on_check(self) -> None:
         self._publish(self.selector.check(self.now_s()))

@@ -46,6 +46,8 @@ START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
 #: Between the instants a lockstep holds at, callbacks (a reset, a command) are served every
 #: this many ticks (each serving costs a wait of the executor: :attr:`SimNode.quiet`).
 QUIET_SPIN = 5
+#: Before the first episode, the graph's subscribers are looked at this often [wall s].
+GRAPH_POLL = 0.05
 
 
 @dataclass(frozen=True)
@@ -126,6 +128,7 @@ class SimNode(Node):
         except ConfigError as exc:
             self.get_logger().fatal(str(exc))
             raise
+        self.graph_check_at = 0.0               # next look at the graph's subscribers (wall)
         if self.gate.first(time.monotonic(), ready=not unmatched(self, self.start_subscribers)):
             self._start_episode()
         self.get_logger().info(
@@ -216,6 +219,9 @@ class SimNode(Node):
         """Start the next episode or let the clock run once the gate opens."""
         ready = True
         if self.gate.state == 'graph':           # node.start_subscribers not all matched yet
+            if time.monotonic() < self.graph_check_at:
+                return                           # (the graph API is not free: every 50 ms)
+            self.graph_check_at = time.monotonic() + GRAPH_POLL
             missing = unmatched(self, self.start_subscribers)
             ready = not missing
             if ready:

@@ -94,6 +94,11 @@ class TickBarrier:
         """Module ``name`` is known dead: missing now, without waiting for a timeout."""
         self.missing.add(self.index[name])
 
+    def alive(self, name: str) -> None:
+        """Module ``name`` is known alive again (its liveliness came back, or a restarted
+        module's proposals are matched): its due decisions are waited for again."""
+        self.missing.discard(self.index[name])
+
     def due(self, t: float) -> np.ndarray:
         """Modules whose decision is due at ``t`` and not missing, shape (N,), bool."""
         # decisions at t_0 + l tau_i
