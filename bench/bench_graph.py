@@ -23,8 +23,9 @@ processes, lockstep, every module timer firing) and observes it from this proces
   (``--real-time``: the robot's operating point, every node idle between instants; from
   :data:`PACED_WARMUP` s after the first commands);
 - the same run with ``--single-process`` (every node in one process and one executor);
-- the executors: the same run with every node on rclpy's EventsExecutor, and the CPU of an
-  idle module node (no ``/clock``) with the EventsExecutor and the SingleThreadedExecutor;
+- the executors: the same run with every node on rclpy's SingleThreadedExecutor and on its
+  EventsExecutor (the default is :class:`cr_sim.executor.LeanExecutor`), and the CPU of an
+  idle module node (no ``/clock``) with each;
 - the round trip with ``clis run --realtime`` (opt-in: simulator, modules and arbiter under
   ``SCHED_FIFO``; the row says whether the nodes got it), as fast as it goes and at real time.
 
@@ -86,7 +87,7 @@ def children(pid: int) -> dict[str, int]:
     return found
 
 
-def measure(seconds: float, single: bool, executor: str = 'single',
+def measure(seconds: float, single: bool, executor: str = 'lean',
             cpus: str = '', params: str = '', speed: float = 0.0, realtime: int = 0) -> dict:
     from geometry_msgs.msg import TwistStamped
     import rclpy
@@ -105,10 +106,12 @@ def measure(seconds: float, single: bool, executor: str = 'single',
     # the simulator logs the round trip of every held instant (readings out -> cmd_vel in)
     rtt_log = out / 'round_trips.txt'
     bench_params = out / 'bench.yaml'
+    # the executor of the graph's nodes (graph.executor) and of the simulator (node.executor,
+    # which has no EventsExecutor: it stays on the default then)
     bench_params.write_text(
         f'sim:\n  ros__parameters:\n    node:\n      round_trip_log: {str(rtt_log)!r}\n'
-        + (f'/**:\n  ros__parameters:\n    graph:\n      executor: {executor}\n'
-           if executor != 'single' else ''))
+        + (f'      executor: {executor}\n' if executor == 'single' else '')
+        + f'/**:\n  ros__parameters:\n    graph:\n      executor: {executor}\n')
     cmd += ['--params', str(bench_params)]
     if params:
         cmd += ['--params', params]
@@ -283,6 +286,7 @@ def main() -> int:
         return 0
     single = measure(args.seconds, single=True, cpus=args.cpus)
     events_run = measure(args.seconds, single=False, executor='events', cpus=args.cpus)
+    single_run = measure(args.seconds, single=False, executor='single', cpus=args.cpus)
     # the robot's operating point: sim time = wall time, every node idle between instants
     paced = {single: measure(args.real_time_seconds, single=single, cpus=args.cpus, speed=1.0)
              for single in (False, True)}
@@ -290,8 +294,8 @@ def main() -> int:
     fifo = {speed: measure(args.seconds if speed == 0 else args.real_time_seconds,
                            single=False, cpus=args.cpus, speed=speed, realtime=args.realtime)
             for speed in ((0.0, 1.0) if args.realtime else ())}
-    events, default = idle_cpu('events'), idle_cpu('single')
-    for r in (multi, single, events_run):
+    events, default, lean = idle_cpu('events'), idle_cpu('single'), idle_cpu('lean')
+    for r in (multi, single, events_run, single_run):
         print(f'{"one process" if r["single_process"] else "processes  "} ({r["executor"]} '
               f'executor): real-time factor '
               f'{r["rtf"]:.1f}x ({r["sim_s"]:.0f} s sim in {r["wall_s"]:.0f} s, '
@@ -310,11 +314,12 @@ def main() -> int:
               f'{r["load_avg_1min"]:.1f})' + ('' if speed else f'; real-time factor '
                                                f'{r["rtf"]:.1f}x'))
     print(f'idle module node CPU: EventsExecutor {events:.0f}%, SingleThreadedExecutor '
-          f'{default:.0f}%')
+          f'{default:.0f}%, LeanExecutor {lean:.0f}%')
     if args.json:
         cpu = ', '.join(f'{k} {v:.0f}%' for k, v in multi['cpu_percent'].items())
         Path(args.json).write_text(json.dumps({
             'processes': multi, 'single_process': single, 'events_executor': events_run,
+            'single_threaded_executor': single_run, 'idle_cpu_lean': lean,
             'real_time_processes': paced[False], 'real_time_single_process': paced[True],
             'realtime_processes': fifo.get(0.0), 'realtime_real_time_processes': fifo.get(1.0),
             'idle_cpu_events': events, 'idle_cpu_single': default, 'rows': [
@@ -350,11 +355,14 @@ def main() -> int:
                  'value': cpu_line(multi)},
                 {'measure': 'CPU-s per sim-s, one process', 'value':
                  f'{single["cpu_s_per_sim_s_total"]:.3f}' if single['sim_s'] > 0 else 'n/a'},
-                {'measure': 'Async graph real-time factor, processes: EventsExecutor | '
-                            'SingleThreadedExecutor',
-                 'value': f'{events_run["rtf"]:.1f}x | {multi["rtf"]:.1f}x'},
-                {'measure': 'idle module node CPU: EventsExecutor | SingleThreadedExecutor',
-                 'value': f'{events:.0f}% | {default:.0f}%'}]}, indent=1))
+                {'measure': 'Async graph, processes, by executor: LeanExecutor (default) | '
+                            'SingleThreadedExecutor | EventsExecutor: real-time factor; round '
+                            'trip p50 / p99',
+                 'value': f'{multi["rtf"]:.1f}x, {rtt(multi)} | {single_run["rtf"]:.1f}x, '
+                          f'{rtt(single_run)} | {events_run["rtf"]:.1f}x'},
+                {'measure': 'idle module node CPU: LeanExecutor | SingleThreadedExecutor | '
+                            'EventsExecutor',
+                 'value': f'{lean:.0f}% | {default:.0f}% | {events:.0f}%'}]}, indent=1))
     return 0
 
 

@@ -19,6 +19,7 @@ __all__ = ['run_single']
 def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     """Run ``plan`` (a :class:`clis_learner.graph.GraphPlan`) in this process; an exit code."""
     from clis_modules.arbiter_node import ArbiterNode
+    from clis_modules.graph_node import make_executor
     from clis_modules.module_node import ModuleNode
     from cr_sim.core.params import ConfigError
     from cr_sim.lifecycle import realtime, settle_heap
@@ -26,7 +27,6 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     from cr_sim.trace import dump as dump_trace
     import rclpy
     from rclpy.clock import Clock, ClockType
-    from rclpy.executors import SingleThreadedExecutor
 
     from clis_learner.graph import (
         EXIT_CONFIG,
@@ -49,7 +49,6 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     factories = {'learner': LearnerNode, 'arbiter': ArbiterNode, 'sim': SimNode,
                  'recorder': RecorderNode}
     nodes = []
-    executor = SingleThreadedExecutor()
     try:
         for child in plan.children:
             factory = factories.get(child.name)
@@ -58,6 +57,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         say(f'clis run: bad parameter: {exc}')
         rclpy.try_shutdown()
         return EXIT_CONFIG
+    executor = make_executor(next(n.graph.executor for n in nodes if hasattr(n, 'graph')))
     monitor = Monitor()
     view = ProgressView(args.episodes, args.block, args.quiet,
                         sys.stderr.isatty() and not args.quiet, args.time_limit)

@@ -34,6 +34,7 @@ from typing import Any
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from cr_sim.executor import LeanExecutor
 from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
@@ -52,7 +53,7 @@ from clis_modules.core.modules import CONDITIONS, ModuleSetParams
 __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qos', 'run_node',
            'take_all']
 
-EXECUTORS = ('events', 'single')
+EXECUTORS = ('lean', 'single', 'events')
 
 
 @dataclass(frozen=True)
@@ -259,10 +260,14 @@ class GraphNode(Node):
 
 
 def make_executor(kind: str):
-    """``'events'``: rclpy's EventsExecutor; ``'single'``: the default SingleThreadedExecutor."""
+    """``'lean'``: :class:`cr_sim.executor.LeanExecutor` (rclpy's single-threaded executor with
+    one wait per batch of ready work); ``'single'``: rclpy's SingleThreadedExecutor;
+    ``'events'``: rclpy's EventsExecutor."""
     if kind == 'events':
         from rclpy.experimental import EventsExecutor
         return EventsExecutor()
+    if kind == 'lean':
+        return LeanExecutor()
     return SingleThreadedExecutor()
 
 

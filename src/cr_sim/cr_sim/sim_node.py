@@ -35,6 +35,7 @@ from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
+from cr_sim.executor import LeanExecutor
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
 from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
@@ -78,6 +79,8 @@ class SimNodeParams:
                                                 "controller's decision periods); 0 = every tick")
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
+    executor: str = param(choices=('lean', 'single'), doc="rclpy executor: 'lean' "
+                          "(cr_sim.executor.LeanExecutor) or 'single' (SingleThreadedExecutor)")
     realtime_priority: int = param(0, 99, doc='SCHED_FIFO priority of the node (every thread); '
                                    '0 = default scheduling. Fail-soft without the right to it')
     round_trip_log: str = param(doc="lockstep: append 'sim_time round_trip_ms' of every held "
@@ -375,7 +378,7 @@ def main(args: list[str] | None = None) -> None:
         print(f'sim: bad parameter: {exc}')
         rclpy.try_shutdown()
         raise SystemExit(2) from None
-    executor = SingleThreadedExecutor()
+    executor = LeanExecutor() if node.cfg.executor == 'lean' else SingleThreadedExecutor()
     executor.add_node(node)
     settle_heap()
     if node.cfg.realtime_priority:
