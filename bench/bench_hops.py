@@ -1,0 +1,152 @@
+"""The floor under the graph's sensor-to-command round trip: a bare chain of rclpy processes.
+
+The CLIS graph's round trip at a decision instant crosses three processes (simulator ->
+module -> arbiter -> simulator), each hop a DDS delivery (Fast DDS's receive thread, then the
+node's executor thread) and a Python executor wakeup. This measures that chain with nothing
+else in it: an *origin* process publishes a small message (``std_msgs/Int64``, its wall time)
+to *relay 1*, whose callback publishes it to *relay 2*, whose callback publishes it back; the
+origin records the round trip. Same DDS profile as the graph (``config/fastdds_graph.xml``:
+shared memory between the processes, loopback only), its own ROS_DOMAIN_ID.
+
+Measured at the graph's operating points: 4 round trips per second with every process idle
+in between (the robot at real time: an Async decision instant every 0.25 s), and back to back
+(as fast as it goes), with the :class:`cr_sim.executor.LeanExecutor` (the graph's default)
+and rclpy's SingleThreadedExecutor. p50 / p99 in ms.
+
+    python bench/bench_hops.py [--count 240] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+HERE = Path(__file__).resolve()
+sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_learner'))
+sys.path.insert(0, str(HERE.parent.parent / 'src' / 'cr_sim'))
+from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
+
+GRAPH_PROFILE = HERE.parent.parent / 'config' / 'fastdds_graph.xml'
+
+
+def make_executor(kind: str):
+    if kind == 'lean':
+        from cr_sim.executor import LeanExecutor
+        return LeanExecutor()
+    from rclpy.executors import SingleThreadedExecutor
+    return SingleThreadedExecutor()
+
+
+def relay(kind: str, src: str, dst: str) -> None:
+    """A relay process: every message on ``src`` is published on ``dst`` from its callback."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from std_msgs.msg import Int64
+    rclpy.init()
+    node = rclpy.create_node(f'relay_{src}')
+    pub = node.create_publisher(Int64, dst, 10)
+    node.create_subscription(Int64, src, pub.publish, 10)
+    executor = make_executor(kind)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+
+
+def chain(kind: str, rate: float, count: int) -> np.ndarray:
+    """Round trips [ms] of ``count`` messages through two relay processes."""
+    import rclpy
+    from std_msgs.msg import Int64
+    relays = [subprocess.Popen([sys.executable, str(HERE), '--relay', kind, src, dst])
+              for src, dst in (('hop0', 'hop1'), ('hop1', 'hop2'))]
+    rclpy.init()
+    node = rclpy.create_node('bench_hops_origin')
+    pub = node.create_publisher(Int64, 'hop0', 10)
+    got: list[float] = []
+    node.create_subscription(
+        Int64, 'hop2', lambda m: got.append((time.perf_counter_ns() - m.data) / 1e6), 10)
+    executor = make_executor(kind)
+    executor.add_node(node)
+    try:
+        end = time.monotonic() + 30.0
+        while len(got) < 5 and time.monotonic() < end:   # the chain is connected
+            pub.publish(Int64(data=time.perf_counter_ns()))
+            executor.spin_once(timeout_sec=0.2)
+        got.clear()
+        time.sleep(1.0)
+        for _ in range(count):
+            n = len(got)
+            pub.publish(Int64(data=time.perf_counter_ns()))
+            deadline = time.monotonic() + 2.0
+            while len(got) == n and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.5)
+            if rate > 0:
+                time.sleep(1.0 / rate)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+        for p in relays:
+            p.terminate()
+            p.wait(10)
+    return np.asarray(got)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument('--count', type=int, default=240,
+                    help='round trips per measurement (10x that back to back)')
+    ap.add_argument('--json', metavar='FILE')
+    ap.add_argument('--relay', nargs=3, metavar=('EXECUTOR', 'SRC', 'DST'),
+                    help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.relay:
+        relay(*args.relay)
+        return 0
+    os.environ.pop('ROS_DOMAIN_ID', None)
+    apply_ros_env(domain_id=pick_domain_id())
+    os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(GRAPH_PROFILE)
+    res = {}
+    for rate, label in ((4.0, 'idle between (4 per s)'), (0.0, 'back to back')):
+        for kind in ('lean', 'single'):
+            # a fresh process for each: rclpy.init once per process
+            out = subprocess.run([sys.executable, '-c', (
+                'import sys, json; sys.argv = [""]; '
+                f'sys.path.insert(0, {str(HERE.parent)!r}); import bench_hops as b; '
+                f'r = b.chain({kind!r}, {rate}, {args.count if rate else 10 * args.count}); '
+                'print(json.dumps([float(x) for x in r]))')],
+                capture_output=True, text=True, check=True)
+            rtt = np.asarray(json.loads(out.stdout.strip().splitlines()[-1]))
+            res[f'{kind} {label}'] = {
+                'n': int(rtt.size), 'p50': float(np.percentile(rtt, 50)),
+                'p99': float(np.percentile(rtt, 99))}
+            r = res[f'{kind} {label}']
+            print(f'{kind:6s} executor, {label:22s}: 3 hops p50 {r["p50"]:.2f} ms, p99 '
+                  f'{r["p99"]:.2f} ms ({r["n"]} round trips)', flush=True)
+    if args.json:
+        def cell(key):
+            r = res[key]
+            return f'{r["p50"]:.2f} / {r["p99"]:.2f} ms'
+        Path(args.json).write_text(json.dumps({'results': res, 'rows': [
+            {'measure': 'floor: bare 3-process rclpy chain (origin -> relay -> relay -> '
+                        'origin, Int64), round trip p50 / p99, 4 per s idle between: '
+                        'LeanExecutor | SingleThreadedExecutor',
+             'value': f'{cell("lean idle between (4 per s)")} | '
+                      f'{cell("single idle between (4 per s)")}'},
+            {'measure': 'the same back to back: LeanExecutor | SingleThreadedExecutor',
+             'value': f'{cell("lean back to back")} | {cell("single back to back")}'}]},
+            indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
