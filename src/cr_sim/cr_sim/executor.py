@@ -19,7 +19,6 @@ set object is reused while the number of entities stays the same.
 from __future__ import annotations
 
 from collections.abc import Callable, Coroutine
-from contextlib import ExitStack
 import inspect
 from typing import Any
 
@@ -42,8 +41,7 @@ class LeanExecutor(SingleThreadedExecutor):
 
     def __init__(self, *, context=None) -> None:
         super().__init__(context=context)
-        self._wait_set = None
-        self._wait_set_size: tuple[int, ...] = ()
+        self._plan: _Plan | None = None
 
     # --------------------------------------------------------------- tasks
 
@@ -83,89 +81,73 @@ class LeanExecutor(SingleThreadedExecutor):
 
     # --------------------------------------------------------------- the wait
 
+    def _active(self) -> tuple:
+        """The entities to wait on now: every node's entities whose callback group can run
+        them (an :class:`~clis_modules.graph_node.OnDemand` group turns on and off), in
+        rclpy's order (node by node: timers, subscriptions, guard conditions, clients,
+        services), then the waitables (QoS events); a tuple that is the plan's key."""
+        active, waitables = [], []
+        for node in self.get_nodes():
+            for kind in _KINDS:
+                # rclpy 7.1's Node keeps its entities in these lists (the properties of the
+                # same names iterate them); waitables only behind the property
+                entities = getattr(node, '_' + kind, None)
+                for e in (entities if entities is not None else getattr(node, kind)):
+                    if e.callback_group.can_execute(e):
+                        active.append(e)
+            waitables += [w for w in node.waitables if w.callback_group.can_execute(w)]
+        active += waitables
+        return tuple(active)
+
+    def _plan_for(self, key: tuple) -> _Plan:
+        if self._plan is None or self._plan.key != key:
+            self._plan = _Plan(key, self._guard, self._sigint_gc, self._context, self._plan,
+                               self)
+        return self._plan
+
     def _spin_once_impl(self, timeout_sec=None, wait_condition=lambda: False) -> None:
         if self._is_shutdown or wait_condition():
             return
-        self._run_tasks()
+        if self._tasks:
+            self._run_tasks()
         timeout_nsec = timeout_sec_to_nsec(
             timeout_sec.timeout if isinstance(timeout_sec, TimeoutObject) else timeout_sec)
-        nodes = self.get_nodes()
-        kinds = ('timers', 'subscriptions', 'guards', 'clients', 'services')
-        per_node = [(node, [[e for e in getattr(node, k) if e.callback_group.can_execute(e)]
-                            for k in kinds]) for node in nodes]
-        waitables = [e for node in nodes for e in node.waitables
-                     if e.callback_group.can_execute(e)]
-        pointer: dict[int, int] = {}           # id(entity) -> its handle's pointer
-        ready_waitables = []
-        with ExitStack() as stack:
-            def entered(entities) -> list:
-                kept = []
-                for e in entities:
-                    try:
-                        stack.enter_context(e.handle)
-                    except InvalidHandle:         # destroyed meanwhile
-                        continue
-                    pointer[id(e)] = e.handle.pointer
-                    kept.append(e)
-                return kept
-
-            timers, subs, guards, clients, services = (
-                entered(e for _, lists in per_node for e in lists[i]) for i in range(5))
-            guards += entered([self._guard, self._sigint_gc])
-            count = NumberOfEntities(len(subs), len(guards), len(timers), len(clients),
-                                     len(services))
-            kept = []
-            for w in waitables:
-                try:
-                    stack.enter_context(w)
-                except InvalidHandle:
-                    continue
-                count += w.get_num_entities()
-                kept.append(w)
-            waitables = kept
-            stack.enter_context(self._context.handle)
-            size = (count.num_subscriptions, count.num_guard_conditions, count.num_timers,
-                    count.num_clients, count.num_services, count.num_events)
-            if size != self._wait_set_size:
-                self._wait_set = _rclpy.WaitSet(*size, self._context.handle)
-                self._wait_set_size = size
-            ws = self._wait_set
+        plan = self._plan_for(self._active())
+        entered = []
+        try:
+            for cm in plan.guarded:                  # in use: not destroyed while waited on
+                cm.__enter__()
+                entered.append(cm)
+        except InvalidHandle:                        # destroyed meanwhile: plan again
+            self._plan = None
+            return
+        else:
+            ws = plan.wait_set
             ws.clear_entities()
-            for e in subs:
-                ws.add_subscription(e.handle)
-            for e in clients:
-                ws.add_client(e.handle)
-            for e in services:
-                ws.add_service(e.handle)
-            for e in timers:
-                ws.add_timer(e.handle)
-            for e in guards:
-                ws.add_guard_condition(e.handle)
-            for w in waitables:
+            for add, handle in plan.adds:
+                add(handle)
+            for w in plan.waitables:
                 w.add_to_wait_set(ws)
-
             ws.wait(timeout_nsec)
             if self._is_shutdown:
                 return
             if not self._context.ok():
                 raise ExternalShutdownException()
             ready = set()
-            for kind in ('timer', 'subscription', 'guard_condition', 'client', 'service'):
+            for kind in plan.kinds:
                 ready.update(ws.get_ready_entities(kind))
-            for w in waitables:                 # while the wait set still holds them
-                if w.is_ready(ws):
-                    ready_waitables.append(w)
-
+            ready_waitables = [w for w in plan.waitables if w.is_ready(ws)]
+        finally:
+            for cm in reversed(entered):
+                cm.__exit__(None, None, None)
         for w in ready_waitables:
-            self._execute(w, lambda e: self._run(self._take_waitable(e)))
-        work = (self._timer, self._subscription, lambda g: self._call(g.callback),
-                lambda c: self._run(self._take_client(c)),
-                lambda s: self._run(self._take_service(s)))
-        for _, lists in per_node:               # rclpy's order: node by node, kind by kind
-            for entities, run in zip(lists, work):
-                for e in entities:
-                    if pointer.get(id(e)) in ready:
-                        self._execute(e, run)
+            self._execute(w, self._waitable)
+        for entity, pointer, run in plan.dispatch:
+            if pointer in ready:
+                self._execute(entity, run)
+
+    def _waitable(self, w) -> None:
+        self._run(self._take_waitable(w))
 
     def _execute(self, entity, work: Callable[[Any], None]) -> None:
         group = entity.callback_group
@@ -175,6 +157,15 @@ class LeanExecutor(SingleThreadedExecutor):
             work(entity)
         finally:
             group.ending_execution(entity)
+
+    def _guard_condition(self, gc) -> None:
+        self._call(gc.callback)
+
+    def _client(self, client) -> None:
+        self._run(self._take_client(client))
+
+    def _service(self, srv) -> None:
+        self._run(self._take_service(srv))
 
     def _timer(self, tmr) -> None:
         try:
@@ -199,3 +190,62 @@ class LeanExecutor(SingleThreadedExecutor):
             self._call(sub.callback, msg_info[0])
         else:
             self._call(sub.callback, *msg_info)
+
+
+#: Node entity lists in rclpy's order of execution, and the wait set's name of each kind
+_KINDS = ('timers', 'subscriptions', 'guards', 'clients', 'services')
+_READY = {'timers': 'timer', 'subscriptions': 'subscription', 'guards': 'guard_condition',
+          'clients': 'client', 'services': 'service'}
+
+
+class _Plan:
+    """What one composition of active entities needs at every wait, computed once: the
+    handles to hold, the wait set (kept from the last plan while the entity counts stay the
+    same), the calls that fill it, the kinds to ask for readiness, and each entity's pointer
+    and runner in the order of ``key``."""
+
+    def __init__(self, key: tuple, guard, sigint_gc, context, last: _Plan | None,
+                 executor: LeanExecutor) -> None:
+        from rclpy.client import Client
+        from rclpy.guard_condition import GuardCondition
+        from rclpy.service import Service
+        from rclpy.subscription import Subscription
+        from rclpy.timer import Timer
+        classes = ((Timer, 'timers'), (Subscription, 'subscriptions'),
+                   (GuardCondition, 'guards'), (Client, 'clients'), (Service, 'services'))
+        self.key = key
+        by_kind: dict[str, list] = {k: [] for k in _KINDS}
+        self.waitables = []
+        kinds = []
+        for e in key:
+            kind = next((k for cls, k in classes if isinstance(e, cls)), None)
+            if kind is None:
+                self.waitables.append(e)
+            else:
+                by_kind[kind].append(e)
+                kinds.append((e, kind))
+        guards = by_kind['guards'] + [guard, sigint_gc]
+        count = NumberOfEntities(len(by_kind['subscriptions']), len(guards),
+                                 len(by_kind['timers']), len(by_kind['clients']),
+                                 len(by_kind['services']))
+        for w in self.waitables:
+            count += w.get_num_entities()
+        self.size = (count.num_subscriptions, count.num_guard_conditions, count.num_timers,
+                     count.num_clients, count.num_services, count.num_events)
+        self.wait_set = (last.wait_set if last is not None and last.size == self.size
+                         else _rclpy.WaitSet(*self.size, context.handle))
+        ws = self.wait_set
+        self.guarded = [*(e.handle for e, _ in kinds), guard.handle, sigint_gc.handle,
+                        *self.waitables, context.handle]
+        adders = {'subscriptions': ws.add_subscription, 'clients': ws.add_client,
+                  'services': ws.add_service, 'timers': ws.add_timer,
+                  'guards': ws.add_guard_condition}
+        self.adds = [(adders[k], e.handle)
+                     for k in ('subscriptions', 'clients', 'services', 'timers')
+                     for e in by_kind[k]]
+        self.adds += [(ws.add_guard_condition, g.handle) for g in guards]
+        self.kinds = [_READY[k] for k in _KINDS if by_kind[k]]
+        runners = {'timers': executor._timer, 'subscriptions': executor._subscription,
+                   'guards': executor._guard_condition, 'clients': executor._client,
+                   'services': executor._service}
+        self.dispatch = [(e, e.handle.pointer, runners[k]) for e, k in kinds]
