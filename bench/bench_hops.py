@@ -3,7 +3,7 @@
 The CLIS graph's round trip at a decision instant crosses three processes (simulator ->
 module -> arbiter -> simulator), each hop a DDS delivery (Fast DDS's receive thread, then the
 node's executor thread) and a Python executor wakeup. This measures that chain with nothing
-else in it: an *origin* process publishes a small message (``std_msgs/Int64``, its wall time)
+else in it: an *origin* process publishes a small message (``std_msgs/Int64``, a sequence number)
 to *relay 1*, whose callback publishes it to *relay 2*, whose callback publishes it back; the
 origin records the round trip. Same DDS profile as the graph (``config/fastdds_graph.xml``:
 shared memory between the processes, loopback only), its own ROS_DOMAIN_ID.
@@ -70,24 +70,30 @@ def chain(kind: str, rate: float, count: int) -> np.ndarray:
     rclpy.init()
     node = rclpy.create_node('bench_hops_origin')
     pub = node.create_publisher(Int64, 'hop0', 10)
-    got: list[float] = []
+    # each message carries its sequence number: a late reply of the connection phase must not
+    # be taken for the answer to the next message (every round trip would then be one late)
+    arrived: dict[int, int] = {}
     node.create_subscription(
-        Int64, 'hop2', lambda m: got.append((time.perf_counter_ns() - m.data) / 1e6), 10)
+        Int64, 'hop2', lambda m: arrived.__setitem__(m.data, time.perf_counter_ns()), 10)
     executor = make_executor(kind)
     executor.add_node(node)
+    rtt: list[float] = []
     try:
         end = time.monotonic() + 30.0
-        while len(got) < 5 and time.monotonic() < end:   # the chain is connected
-            pub.publish(Int64(data=time.perf_counter_ns()))
+        seq = -1
+        while len(arrived) < 5 and time.monotonic() < end:   # the chain is connected
+            pub.publish(Int64(data=seq))
+            seq -= 1
             executor.spin_once(timeout_sec=0.2)
-        got.clear()
         time.sleep(1.0)
-        for _ in range(count):
-            n = len(got)
-            pub.publish(Int64(data=time.perf_counter_ns()))
+        for k in range(count):
+            sent = time.perf_counter_ns()
+            pub.publish(Int64(data=k))
             deadline = time.monotonic() + 2.0
-            while len(got) == n and time.monotonic() < deadline:
+            while k not in arrived and time.monotonic() < deadline:
                 executor.spin_once(timeout_sec=0.5)
+            if k in arrived:
+                rtt.append((arrived[k] - sent) / 1e6)
             if rate > 0:
                 time.sleep(1.0 / rate)
     finally:
@@ -97,7 +103,7 @@ def chain(kind: str, rate: float, count: int) -> np.ndarray:
         for p in relays:
             p.terminate()
             p.wait(10)
-    return np.asarray(got)
+    return np.asarray(rtt)
 
 
 def main() -> int:
