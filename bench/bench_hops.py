@@ -22,6 +22,7 @@ import argparse
 import json
 import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import time
@@ -65,7 +66,8 @@ def chain(kind: str, rate: float, count: int) -> np.ndarray:
     """Round trips [ms] of ``count`` messages through two relay processes."""
     import rclpy
     from std_msgs.msg import Int64
-    relays = [subprocess.Popen([sys.executable, str(HERE), '--relay', kind, src, dst])
+    relays = [subprocess.Popen([sys.executable, str(HERE), '--relay', kind, src, dst],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
               for src, dst in (('hop0', 'hop1'), ('hop1', 'hop2'))]
     rclpy.init()
     node = rclpy.create_node('bench_hops_origin')
@@ -101,8 +103,13 @@ def chain(kind: str, rate: float, count: int) -> np.ndarray:
         node.destroy_node()
         rclpy.try_shutdown()
         for p in relays:
-            p.terminate()
-            p.wait(10)
+            p.send_signal(signal.SIGINT)
+        for p in relays:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
     return np.asarray(rtt)
 
 
