@@ -18,6 +18,7 @@ import json
 import os
 from pathlib import Path
 import platform
+import re
 import subprocess
 import sys
 import tempfile
@@ -25,6 +26,8 @@ import tempfile
 HERE = Path(__file__).resolve().parent
 DOC = HERE.parent / 'docs' / 'benchmarks.md'
 START, END = '<!-- BENCH -->', '<!-- /BENCH -->'
+#: 'The rows of A, B are from DATE UTC (a remark).' in the table's first line
+_KEPT = re.compile(r'The rows of (.+?) are from (.+? UTC(?: \([^)]*\))?)\.')
 
 
 def machine() -> dict:
@@ -57,18 +60,32 @@ def render(results: dict, kept: list[str] | None = None, kept_note: str = '') ->
     return '\n'.join(lines + (kept or []))
 
 
-def _old_rows(text: str, skip: set[str]) -> tuple[list[str], str]:
-    """Table rows of benchmarks not in ``skip`` from the current table, and its date."""
+def _old_rows(text: str, skip: set[str]) -> tuple[list[str], dict[str, str]]:
+    """Table rows of benchmarks not in ``skip`` from the current table, and the date each of
+    those benchmarks was measured (a row kept from an earlier run keeps that run's date)."""
     if START not in text or END not in text:
-        return [], ''
+        return [], {}
     table = text.split(START, 1)[1].split(END, 1)[0]
-    date = ''
+    date, earlier = '', {}
     for line in table.splitlines():
         if line.startswith('Measured '):
             date = line.split(' on ', 1)[0][len('Measured '):]
+            for names, when in re.findall(_KEPT, line):
+                earlier.update({n.strip(): when for n in names.split(',')})
     rows = [line for line in table.splitlines()
             if line.startswith('| bench_') and line.split('|')[1].strip() not in skip]
-    return rows, date
+    dates = {name: earlier.get(name, date)
+             for name in {r.split('|')[1].strip() for r in rows}}
+    return rows, dates
+
+
+def _kept_note(dates: dict[str, str]) -> str:
+    """'The rows of A, B are from D1. The rows of C are from D2.'"""
+    by_date: dict[str, list[str]] = {}
+    for name, when in sorted(dates.items()):
+        by_date.setdefault(when, []).append(name)
+    return ' '.join(f'The rows of {", ".join(names)} are from {when}.'
+                    for when, names in sorted(by_date.items()))
 
 
 def main() -> int:
@@ -99,9 +116,8 @@ def main() -> int:
     (HERE / 'results').mkdir(exist_ok=True)
     (HERE / 'results' / 'latest.json').write_text(json.dumps(results, indent=2))
     text = DOC.read_text() if DOC.exists() else f'# Benchmarks\n\n{START}\n{END}\n'
-    kept, date = _old_rows(text, {s.stem for s in scripts}) if args.only else ([], '')
-    note = (f'The rows of {", ".join(sorted({r.split("|")[1].strip() for r in kept}))} are '
-            f'from {date}.' if kept else '')
+    kept, dates = _old_rows(text, {s.stem for s in scripts}) if args.only else ([], {})
+    note = _kept_note(dates) if kept else ''
     table = render(results, kept, note)
     if START in text and END in text:
         head, rest = text.split(START, 1)
