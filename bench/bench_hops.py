@@ -33,16 +33,9 @@ HERE = Path(__file__).resolve()
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'cr_sim'))
 from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
+from cr_sim.executor import make_executor  # noqa: E402
 
 GRAPH_PROFILE = HERE.parent.parent / 'config' / 'fastdds_graph.xml'
-
-
-def make_executor(kind: str):
-    if kind == 'lean':
-        from cr_sim.executor import LeanExecutor
-        return LeanExecutor()
-    from rclpy.executors import SingleThreadedExecutor
-    return SingleThreadedExecutor()
 
 
 def relay(kind: str, src: str, dst: str) -> None:

@@ -19,9 +19,9 @@ __all__ = ['run_single']
 def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     """Run ``plan`` (a :class:`clis_learner.graph.GraphPlan`) in this process; an exit code."""
     from clis_modules.arbiter_node import ArbiterNode
-    from clis_modules.graph_node import make_executor
     from clis_modules.module_node import ModuleNode
     from cr_sim.core.params import ConfigError
+    from cr_sim.executor import make_executor
     from cr_sim.lifecycle import realtime, settle_heap
     from cr_sim.sim_node import SimNode, run
     from cr_sim.trace import dump as dump_trace

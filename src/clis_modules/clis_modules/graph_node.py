@@ -34,7 +34,7 @@ from typing import Any
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.executor import LeanExecutor
+from cr_sim.executor import EXECUTORS, make_executor
 from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
 from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
@@ -43,7 +43,7 @@ import rclpy
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType, JumpThreshold
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import LivelinessPolicy, QoSProfile
@@ -52,8 +52,6 @@ from clis_modules.core.modules import CONDITIONS, ModuleSetParams
 
 __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qos', 'run_node',
            'take_all']
-
-EXECUTORS = ('lean', 'single', 'events')
 
 
 @dataclass(frozen=True)
@@ -64,8 +62,9 @@ class GraphParams:
     seed: int = param(0, 2**31 - 1, doc='seed of the run (each node derives its own streams)')
     arena_file: str = param(doc="arena description (the place module's map); '' = "
                                 'config/arena.yaml')
-    executor: str = param(choices=EXECUTORS, doc="rclpy executor: 'events' "
-                          '(rclpy.experimental.EventsExecutor) or the default single-threaded')
+    executor: str = param(choices=EXECUTORS, doc="rclpy executor: 'lean' "
+                          "(cr_sim.executor.LeanExecutor), 'single' (rclpy's "
+                          "SingleThreadedExecutor) or 'events' (rclpy's EventsExecutor)")
     liveliness_lease: float = param(0.1, 60.0, doc='[s wall] DDS liveliness lease of the '
                                     'proposals: the arbiter knows a module died this soon')
     housekeeping_period: float = param(0.001, 10.0, doc='[s wall] how often the parameter '
@@ -257,18 +256,6 @@ class GraphNode(Node):
         self._jump_handles = [*getattr(self, '_jump_handles', []),
                               self.get_clock().create_jump_callback(
                                   threshold, post_callback=lambda _: callback(self.now_s()))]
-
-
-def make_executor(kind: str):
-    """``'lean'``: :class:`cr_sim.executor.LeanExecutor` (rclpy's single-threaded executor with
-    one wait per batch of ready work); ``'single'``: rclpy's SingleThreadedExecutor;
-    ``'events'``: rclpy's EventsExecutor."""
-    if kind == 'events':
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor()
-    if kind == 'lean':
-        return LeanExecutor()
-    return SingleThreadedExecutor()
 
 
 def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,

@@ -22,14 +22,22 @@ from collections.abc import Callable, Coroutine
 import inspect
 from typing import Any
 
+from rclpy.client import Client
 from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor, TimeoutObject
+from rclpy.guard_condition import GuardCondition
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.service import Service
+from rclpy.subscription import Subscription
 from rclpy.task import Task
+from rclpy.timer import Timer
 from rclpy.utilities import timeout_sec_to_nsec
 from rclpy.waitable import NumberOfEntities
 
-__all__ = ['LeanExecutor']
+__all__ = ['EXECUTORS', 'LeanExecutor', 'make_executor']
+
+#: The executors a node can spin on (``graph.executor``, the simulator's ``node.executor``)
+EXECUTORS = ('lean', 'single', 'events')
 
 
 class LeanExecutor(SingleThreadedExecutor):
@@ -101,8 +109,7 @@ class LeanExecutor(SingleThreadedExecutor):
 
     def _plan_for(self, key: tuple) -> _Plan:
         if self._plan is None or self._plan.key != key:
-            self._plan = _Plan(key, self._guard, self._sigint_gc, self._context, self._plan,
-                               self)
+            self._plan = _Plan(key, self, self._plan)
         return self._plan
 
     def _spin_once_impl(self, timeout_sec=None, wait_condition=lambda: False) -> None:
@@ -192,8 +199,21 @@ class LeanExecutor(SingleThreadedExecutor):
             self._call(sub.callback, *msg_info)
 
 
+def make_executor(kind: str):
+    """An executor of :data:`EXECUTORS`: ``'lean'``, :class:`LeanExecutor`; ``'single'``,
+    rclpy's SingleThreadedExecutor; ``'events'``, rclpy's EventsExecutor."""
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor()
+    if kind == 'lean':
+        return LeanExecutor()
+    return SingleThreadedExecutor()
+
+
 #: Node entity lists in rclpy's order of execution, and the wait set's name of each kind
 _KINDS = ('timers', 'subscriptions', 'guards', 'clients', 'services')
+_CLASSES = ((Timer, 'timers'), (Subscription, 'subscriptions'), (GuardCondition, 'guards'),
+            (Client, 'clients'), (Service, 'services'))
 _READY = {'timers': 'timer', 'subscriptions': 'subscription', 'guards': 'guard_condition',
           'clients': 'client', 'services': 'service'}
 
@@ -204,21 +224,14 @@ class _Plan:
     same), the calls that fill it, the kinds to ask for readiness, and each entity's pointer
     and runner in the order of ``key``."""
 
-    def __init__(self, key: tuple, guard, sigint_gc, context, last: _Plan | None,
-                 executor: LeanExecutor) -> None:
-        from rclpy.client import Client
-        from rclpy.guard_condition import GuardCondition
-        from rclpy.service import Service
-        from rclpy.subscription import Subscription
-        from rclpy.timer import Timer
-        classes = ((Timer, 'timers'), (Subscription, 'subscriptions'),
-                   (GuardCondition, 'guards'), (Client, 'clients'), (Service, 'services'))
+    def __init__(self, key: tuple, executor: LeanExecutor, last: _Plan | None) -> None:
+        guard, sigint_gc, context = executor._guard, executor._sigint_gc, executor._context
         self.key = key
         by_kind: dict[str, list] = {k: [] for k in _KINDS}
         self.waitables = []
         kinds = []
         for e in key:
-            kind = next((k for cls, k in classes if isinstance(e, cls)), None)
+            kind = next((k for cls, k in _CLASSES if isinstance(e, cls)), None)
             if kind is None:
                 self.waitables.append(e)
             else:

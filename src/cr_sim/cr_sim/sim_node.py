@@ -35,7 +35,7 @@ from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
-from cr_sim.executor import LeanExecutor
+from cr_sim.executor import make_executor
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
 from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
 from cr_sim.profiling import start_profile, stop_profile
@@ -378,7 +378,7 @@ def main(args: list[str] | None = None) -> None:
         print(f'sim: bad parameter: {exc}')
         rclpy.try_shutdown()
         raise SystemExit(2) from None
-    executor = LeanExecutor() if node.cfg.executor == 'lean' else SingleThreadedExecutor()
+    executor = make_executor(node.cfg.executor)
     executor.add_node(node)
     settle_heap()
     if node.cfg.realtime_priority:
