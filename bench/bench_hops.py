@@ -11,7 +11,10 @@ shared memory between the processes, loopback only), its own ROS_DOMAIN_ID.
 Measured at the graph's operating points: 4 round trips per second with every process idle
 in between (the robot at real time: an Async decision instant every 0.25 s), and back to back
 (as fast as it goes), with the :class:`cr_sim.executor.LeanExecutor` (the graph's default)
-and rclpy's SingleThreadedExecutor. p50 / p99 in ms.
+and rclpy's SingleThreadedExecutor; and with the LeanExecutor with all three processes (every
+thread) under ``SCHED_FIFO`` priority 10, as ``clis run --realtime 10`` runs the graph's
+sensor-to-command path (:func:`cr_sim.lifecycle.realtime`; needs root, CAP_SYS_NICE or
+``ulimit -r``, else that row says so). p50 / p99 in ms.
 
     python bench/bench_hops.py [--count 240] [--json FILE]
 """
@@ -32,14 +35,17 @@ import numpy as np
 HERE = Path(__file__).resolve()
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'cr_sim'))
+from clis_learner.graph import REALTIME_PRIORITY as FIFO_PRIORITY  # noqa: E402
 from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 from cr_sim.executor import make_executor  # noqa: E402
+from cr_sim.lifecycle import realtime  # noqa: E402
 
 GRAPH_PROFILE = HERE.parent.parent / 'config' / 'fastdds_graph.xml'
 
 
-def relay(kind: str, src: str, dst: str) -> None:
-    """A relay process: every message on ``src`` is published on ``dst`` from its callback."""
+def relay(kind: str, src: str, dst: str, priority: int = 0) -> None:
+    """A relay process: every message on ``src`` is published on ``dst`` from its callback
+    (``priority`` > 0: every thread under ``SCHED_FIFO`` at it)."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from std_msgs.msg import Int64
@@ -49,17 +55,21 @@ def relay(kind: str, src: str, dst: str) -> None:
     node.create_subscription(Int64, src, pub.publish, 10)
     executor = make_executor(kind)
     executor.add_node(node)
+    realtime(priority)                  # after rclpy started its threads: all of them
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 
 
-def chain(kind: str, rate: float, count: int) -> np.ndarray:
-    """Round trips [ms] of ``count`` messages through two relay processes."""
+def chain(kind: str, rate: float, count: int, priority: int = 0) -> np.ndarray:
+    """Round trips [ms] of ``count`` messages through two relay processes (``priority`` > 0:
+    the three processes under ``SCHED_FIFO`` at it; :class:`PermissionError` without the
+    right)."""
     import rclpy
     from std_msgs.msg import Int64
-    relays = [subprocess.Popen([sys.executable, str(HERE), '--relay', kind, src, dst],
+    relays = [subprocess.Popen([sys.executable, str(HERE), '--relay', kind, src, dst,
+                                str(priority)],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
               for src, dst in (('hop0', 'hop1'), ('hop1', 'hop2'))]
     rclpy.init()
@@ -72,6 +82,10 @@ def chain(kind: str, rate: float, count: int) -> np.ndarray:
         Int64, 'hop2', lambda m: arrived.__setitem__(m.data, time.perf_counter_ns()), 10)
     executor = make_executor(kind)
     executor.add_node(node)
+    if priority > 0:
+        ok, said = realtime(priority)
+        if not ok:
+            raise PermissionError(said)
     rtt: list[float] = []
     try:
         end = time.monotonic() + 30.0
@@ -112,44 +126,53 @@ def main() -> int:
     ap.add_argument('--count', type=int, default=240,
                     help='round trips per measurement (10x that back to back)')
     ap.add_argument('--json', metavar='FILE')
-    ap.add_argument('--relay', nargs=3, metavar=('EXECUTOR', 'SRC', 'DST'),
+    ap.add_argument('--relay', nargs=4, metavar=('EXECUTOR', 'SRC', 'DST', 'PRIORITY'),
                     help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.relay:
-        relay(*args.relay)
+        relay(*args.relay[:3], int(args.relay[3]))
         return 0
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
     os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(GRAPH_PROFILE)
     res = {}
     for rate, label in ((4.0, 'idle between (4 per s)'), (0.0, 'back to back')):
-        for kind in ('lean', 'single'):
+        for kind, prio in (('lean', 0), ('single', 0), ('lean', FIFO_PRIORITY)):
             # a fresh process for each: rclpy.init once per process
             out = subprocess.run([sys.executable, '-c', (
                 'import sys, json; sys.argv = [""]; '
                 f'sys.path.insert(0, {str(HERE.parent)!r}); import bench_hops as b; '
-                f'r = b.chain({kind!r}, {rate}, {args.count if rate else 10 * args.count}); '
-                'print(json.dumps([float(x) for x in r]))')],
-                capture_output=True, text=True, check=True)
+                f'r = b.chain({kind!r}, {rate}, {args.count if rate else 10 * args.count}, '
+                f'{prio}); print(json.dumps([float(x) for x in r]))')],
+                capture_output=True, text=True)
+            name = f'{kind}{" fifo" if prio else ""} {label}'
+            if out.returncode != 0:
+                why = out.stderr.strip().splitlines()[-1] if out.stderr.strip() else '?'
+                if prio and 'PermissionError' in why:
+                    res[name] = {'error': why.split(': ', 1)[-1]}
+                    print(f'{name}: not measured ({res[name]["error"]})', flush=True)
+                    continue
+                raise RuntimeError(f'{name}: {out.stderr}')
             rtt = np.asarray(json.loads(out.stdout.strip().splitlines()[-1]))
-            res[f'{kind} {label}'] = {
-                'n': int(rtt.size), 'p50': float(np.percentile(rtt, 50)),
-                'p99': float(np.percentile(rtt, 99))}
-            r = res[f'{kind} {label}']
-            print(f'{kind:6s} executor, {label:22s}: 3 hops p50 {r["p50"]:.2f} ms, p99 '
-                  f'{r["p99"]:.2f} ms ({r["n"]} round trips)', flush=True)
+            res[name] = {'n': int(rtt.size), 'p50': float(np.percentile(rtt, 50)),
+                         'p99': float(np.percentile(rtt, 99))}
+            r = res[name]
+            print(f'{name:40s}: 3 hops p50 {r["p50"]:.2f} ms, p99 {r["p99"]:.2f} ms '
+                  f'({r["n"]} round trips)', flush=True)
     if args.json:
         def cell(key):
             r = res[key]
-            return f'{r["p50"]:.2f} / {r["p99"]:.2f} ms'
+            return r['error'] if 'error' in r else f'{r["p50"]:.2f} / {r["p99"]:.2f} ms'
         Path(args.json).write_text(json.dumps({'results': res, 'rows': [
             {'measure': 'floor: bare 3-process rclpy chain (origin -> relay -> relay -> '
                         'origin, Int64), round trip p50 / p99, 4 per s idle between: '
-                        'LeanExecutor | SingleThreadedExecutor',
-             'value': f'{cell("lean idle between (4 per s)")} | '
-                      f'{cell("single idle between (4 per s)")}'},
-            {'measure': 'the same back to back: LeanExecutor | SingleThreadedExecutor',
-             'value': f'{cell("lean back to back")} | {cell("single back to back")}'}]},
+                        'LeanExecutor | SingleThreadedExecutor | LeanExecutor, all under '
+                        f'SCHED_FIFO {FIFO_PRIORITY}',
+             'value': ' | '.join(cell(f'{k} idle between (4 per s)')
+                                 for k in ('lean', 'single', 'lean fifo'))},
+            {'measure': 'the same back to back',
+             'value': ' | '.join(cell(f'{k} back to back')
+                                 for k in ('lean', 'single', 'lean fifo'))}]},
             indent=1))
     return 0
 
