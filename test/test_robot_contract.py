@@ -218,24 +218,35 @@ def test_an_idle_episode_times_out_with_one_reward_per_tick(robot):
 
 
 def test_a_collision_costs_once_while_pressed(robot):
+    """Backing away from the destination runs into a wall: -0.1 once, however long it presses.
+
+    An episode lasts ``TIME_LIMIT`` of clock (4 s wall here); on a loaded machine turning to
+    face the destination can take most of that, and the episode may end before the robot
+    reaches a wall. Then the next episode is tried, three at most.
+    """
     _, p = robot
-    n = len(events(p))
-    assert p.spin_until(lambda: len(events(p)) > n and events(p)[-1][1] == 'start',
-                        TIME_LIMIT / SPEED * 4 + 10), 'a fresh episode'
-    ep = int(events(p)[-1][2]['episode'])
-
-    # face the destination, then back away from it into whatever is behind (a wall)
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline:
-        v, w = heading_controller(p)
-        if abs(w) < 0.1 and v > 0:
-            break
-        drive(p, 0.0, w, 0.05)
-
-    def hit() -> bool:
+    def hit(ep: int) -> bool:
         return any(r < 0 for _, r, _ in _episode_rewards(p, ep))
 
-    assert drive(p, -0.8, 0.0, 6.0 / SPEED, until=hit), 'no collision backing away'
+    def over(ep: int) -> bool:
+        return events(p)[-1][1] != 'start' or int(events(p)[-1][2]['episode']) != ep
+
+    for _ in range(3):
+        n = len(events(p))
+        assert p.spin_until(lambda n=n: len(events(p)) > n and events(p)[-1][1] == 'start',
+                            TIME_LIMIT / SPEED * 4 + 10), 'a fresh episode'
+        ep = int(events(p)[-1][2]['episode'])
+        # face the destination, then back away from it into whatever is behind (a wall)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not over(ep):
+            v, w = heading_controller(p)
+            if abs(w) < 0.1 and v > 0:
+                break
+            drive(p, 0.0, w, 0.05)
+        drive(p, -0.8, 0.0, 6.0 / SPEED, until=lambda ep=ep: hit(ep) or over(ep))
+        if hit(ep):
+            break
+    assert hit(ep), 'no collision backing away, in three episodes'
     drive(p, -0.8, 0.0, 1.0)                  # keep pressing: 5 s of clock
     hits = [r for _, r, _ in _episode_rewards(p, ep) if r < 0]
     assert hits == [pytest.approx(-0.1)], hits
