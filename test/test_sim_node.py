@@ -120,20 +120,26 @@ def test_sim_node_takes_plain_twist_by_parameter_and_resets_on_request(probe):
     from std_srvs.srv import Trigger
 
     proc = start_node('cr_sim.sim_node', '-p', f'node.speed_factor:={SPEED}',
-                      '-p', 'node.cmd_vel_stamped:=false', '-p', 'node.start:=A')
+                      '-p', 'node.cmd_vel_stamped:=false', '-p', 'node.start:=A',
+                      # as above: no episode end (and auto reset to A) in the middle of the turn
+                      '-p', 'episode.time_limit:=600.0')
     try:
         probe.listen(Odometry, 'odom')
         probe.listen(DiagnosticArray, 'episode', latched=True)
         assert probe.spin_until(lambda: probe.msgs['odom'], 30), stop(proc)
-        p0 = pose_of(probe.msgs['odom'][-1])
         pub = probe.node.create_publisher(Twist, 'cmd_vel', 10)
+        # a message published before DDS has matched the sim's subscription is lost: wait
+        assert probe.spin_until(lambda: pub.get_subscription_count() > 0, 10), stop(proc)
+        p0 = pose_of(probe.msgs['odom'][-1])
         msg = Twist()
         msg.angular.z = 2.0
-        for _ in range(20):
+
+        def turned() -> float:
             pub.publish(msg)
-            probe.spin_for(0.05)
-        p1 = pose_of(probe.msgs['odom'][-1])
-        assert abs(math.remainder(p1[2] - p0[2], 2 * math.pi)) > 0.3, 'Twist turned the robot'
+            p1 = pose_of(probe.msgs['odom'][-1])
+            return abs(math.remainder(p1[2] - p0[2], 2 * math.pi))
+        # at x10 the turn takes a fraction of a second; 10 s of wall time is only a bound
+        assert probe.spin_until(lambda: turned() > 0.3, 10), f'Twist turned {turned():.3f} rad'
         # the reset service ends the episode and starts the next one at start A again
         client = probe.node.create_client(Trigger, 'reset')
         assert client.wait_for_service(timeout_sec=10)
