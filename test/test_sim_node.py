@@ -82,6 +82,8 @@ def test_sim_node_publishes_interface_at_declared_rates_and_obeys_cmd_vel(probe)
 
         # a forward command moves the robot; a NaN command never does
         pub = probe.node.create_publisher(TwistStamped, 'cmd_vel', 10)
+        # a message published before DDS has matched the sim's subscription is lost: wait
+        assert probe.spin_until(lambda: pub.get_subscription_count() > 0, 10), stop(proc)
 
         def drive(v: float, seconds: float) -> np.ndarray:
             msg = TwistStamped()
