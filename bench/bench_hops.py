@@ -16,7 +16,14 @@ thread) under ``SCHED_FIFO`` priority 10, as ``clis run --realtime 10`` runs the
 sensor-to-command path (:func:`cr_sim.lifecycle.realtime`; needs root, CAP_SYS_NICE or
 ``ulimit -r``, else that row says so). p50 / p99 in ms.
 
-    python bench/bench_hops.py [--count 240] [--json FILE]
+Under all of it, the host: a busy loop pinned to each core (normal priority, nothing else
+running) reads the clock back to back and counts its stalls, the times the core was taken
+from it (an interrupt, a kernel thread, or on a VM the hypervisor descheduling the vCPU:
+*steal*, also read from ``/proc/stat``). No process on that host answers faster than its
+stalls allow: a host whose busy loop stalls > 5 ms several times a minute cannot give a round
+trip of several hops a p99 <= 5 ms, whatever the software does.
+
+    python bench/bench_hops.py [--count 240] [--stall-seconds 20] [--json FILE]
 """
 
 from __future__ import annotations
@@ -120,11 +127,57 @@ def chain(kind: str, rate: float, count: int, priority: int = 0) -> np.ndarray:
     return np.asarray(rtt)
 
 
+def stalls(cpu: int, seconds: float) -> list[float]:
+    """Stalls [ms] longer than 0.2 ms seen by a busy loop pinned to ``cpu`` for ``seconds``:
+    the gaps between two consecutive reads of the clock."""
+    os.sched_setaffinity(0, {cpu})
+    gaps: list[float] = []
+    last = time.perf_counter_ns()
+    end = last + int(seconds * 1e9)
+    while last < end:
+        now = time.perf_counter_ns()
+        if now - last > 200_000:
+            gaps.append((now - last) / 1e6)
+        last = now
+    return gaps
+
+
+def _steal_jiffies() -> int:
+    """The host's steal time so far, summed over the cores (USER_HZ ticks; 0 if unknown)."""
+    try:
+        fields = Path('/proc/stat').read_text().splitlines()[0].split()
+        return int(fields[8])
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+def host_stalls(seconds: float) -> dict:
+    """One :func:`stalls` busy loop per core, at the same time (a process each): stalls
+    > 1 ms and > 5 ms per minute and per core, the longest, and the steal over the window in %
+    of the cores' time."""
+    cpus = sorted(os.sched_getaffinity(0))
+    steal0 = _steal_jiffies()
+    procs = [subprocess.Popen([sys.executable, '-c', (
+        f'import sys, json; sys.path.insert(0, {str(HERE.parent)!r}); import bench_hops as b; '
+        f'print(json.dumps(b.stalls({cpu}, {seconds})))')], stdout=subprocess.PIPE, text=True)
+        for cpu in cpus]
+    gaps = np.concatenate([np.asarray(json.loads(p.communicate()[0]), dtype=float)
+                           for p in procs] + [np.zeros(0)])
+    steal = (_steal_jiffies() - steal0) / os.sysconf('SC_CLK_TCK') / (seconds * len(cpus))
+    per_min = 60.0 / (seconds * len(cpus))
+    return {'cores': len(cpus), 'seconds': seconds,
+            'over_1ms_per_min': float(np.sum(gaps > 1.0) * per_min),
+            'over_5ms_per_min': float(np.sum(gaps > 5.0) * per_min),
+            'max_ms': float(gaps.max(initial=0.0)), 'steal_pct': 100.0 * steal}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--count', type=int, default=240,
                     help='round trips per measurement (10x that back to back)')
+    ap.add_argument('--stall-seconds', type=float, default=20.0,
+                    help='seconds of the busy loops that measure the host stalls (0: not)')
     ap.add_argument('--json', metavar='FILE')
     ap.add_argument('--relay', nargs=4, metavar=('EXECUTOR', 'SRC', 'DST', 'PRIORITY'),
                     help=argparse.SUPPRESS)
@@ -136,6 +189,12 @@ def main() -> int:
     apply_ros_env(domain_id=pick_domain_id())
     os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(GRAPH_PROFILE)
     res = {}
+    host = host_stalls(args.stall_seconds) if args.stall_seconds > 0 else None
+    if host:
+        print(f'host stalls, a busy loop per core ({host["cores"]} x {host["seconds"]:.0f} s): '
+              f'{host["over_1ms_per_min"]:.0f} > 1 ms and {host["over_5ms_per_min"]:.0f} > 5 ms '
+              f'per minute and core, longest {host["max_ms"]:.1f} ms; steal '
+              f'{host["steal_pct"]:.1f}%', flush=True)
     for rate, label in ((4.0, 'idle between (4 per s)'), (0.0, 'back to back')):
         for kind, prio in (('lean', 0), ('single', 0), ('lean', FIFO_PRIORITY)):
             # a fresh process for each: rclpy.init once per process
@@ -163,7 +222,13 @@ def main() -> int:
         def cell(key):
             r = res[key]
             return r['error'] if 'error' in r else f'{r["p50"]:.2f} / {r["p99"]:.2f} ms'
-        Path(args.json).write_text(json.dumps({'results': res, 'rows': [
+        rows = [] if host is None else [
+            {'measure': 'the host under it: stalls of a busy loop pinned to each core (nothing '
+                        'else running; interrupts, kernel, hypervisor), > 1 ms | > 5 ms per '
+                        'minute and core, longest; steal',
+             'value': f'{host["over_1ms_per_min"]:.0f} | {host["over_5ms_per_min"]:.0f} per '
+                      f'min, {host["max_ms"]:.1f} ms; steal {host["steal_pct"]:.1f}%'}]
+        Path(args.json).write_text(json.dumps({'results': res, 'host': host, 'rows': rows + [
             {'measure': 'floor: bare 3-process rclpy chain (origin -> relay -> relay -> '
                         'origin, Int64), round trip p50 / p99, 4 per s idle between: '
                         'LeanExecutor | SingleThreadedExecutor | LeanExecutor, all under '

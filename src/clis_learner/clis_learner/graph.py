@@ -52,6 +52,11 @@ EXIT_OK, EXIT_CHILD, EXIT_CONFIG, EXIT_STARTUP, EXIT_INTERRUPTED = 0, 1, 2, 3, 1
 #: ``clis run --realtime`` without a value: the SCHED_FIFO priority of the sensor-to-command
 #: path (low among real-time priorities: the kernel's interrupt threads run at 50)
 REALTIME_PRIORITY = 10
+#: Under ``--realtime PRIO``, each node's SCHED_FIFO priority above PRIO, in the order of the
+#: round trip's end: the modules at PRIO, the simulator (waiting for ``cmd_vel``) one above,
+#: the arbiter two above. A proposal's arrival then preempts a module's work at the same
+#: instant, and the command's arrival preempts both (measured: docs/benchmarks.md).
+REALTIME_ABOVE = {'sim': 1, 'arbiter': 2}
 EPILOG = """examples:
   clis run --condition async --episodes 300                 # as fast as the graph keeps up
   clis run --condition view --episodes 50 --speed 5 --out results/run/view
@@ -123,7 +128,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
                record: str = '', realtime: int = 0) -> GraphPlan:
     """The nodes of ``condition``, with the parameters ``clis run`` gives each;
     ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
-    ``SCHED_FIFO`` at that priority (:func:`cr_sim.lifecycle.realtime`)."""
+    ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
+    :func:`cr_sim.lifecycle.realtime`)."""
     from clis_modules.core.modules import condition_periods
 
     from clis_learner.core.config import load_clis_params
@@ -139,7 +145,9 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume},
         restart='resume'))
     control = {**graph, 'graph.realtime_priority': realtime} if realtime else graph
-    plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', dict(control)))
+    plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', {
+        **graph, **({'graph.realtime_priority': realtime + REALTIME_ABOVE['arbiter']}
+                    if realtime else {})}))
     for name in modules:
         plan.children.append(Child(name, 'clis_modules', name, dict(control)))
     if robot == 'bridge':
@@ -157,7 +165,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         'node.start_subscribers': matched,
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
-        **({'node.realtime_priority': realtime} if realtime else {})},
+        **({'node.realtime_priority': realtime + REALTIME_ABOVE['sim']} if realtime else {})},
         restart='never'))
     return plan
 
@@ -446,10 +454,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         'bags/NAME; see clis bag info / replay / learn)')
     p.add_argument('--realtime', type=int, nargs='?', const=REALTIME_PRIORITY, default=0,
                    metavar='PRIO',
-                   help='run the sensor-to-command path (simulator, modules, arbiter; not the '
-                        f'learner) under SCHED_FIFO priority PRIO (1-99, default '
-                        f'{REALTIME_PRIORITY}): needs root, CAP_SYS_NICE or ulimit -r, else '
-                        'each node warns and runs with the default scheduling')
+                   help='run the sensor-to-command path (modules, simulator, arbiter; not the '
+                        f'learner) under SCHED_FIFO priority PRIO, PRIO+1, PRIO+2 (PRIO in '
+                        f'1-97, default {REALTIME_PRIORITY}), with idle cores polling '
+                        '(/dev/cpu_dma_latency held at 0): needs root, CAP_SYS_NICE or ulimit '
+                        '-r, else each node warns and runs with the default scheduling')
     p.add_argument('--quiet', action='store_true', help='no progress line')
     p.set_defaults(func=main)
 
@@ -480,8 +489,10 @@ def _check_args(args: argparse.Namespace) -> str | None:
                    'runs faster)'
     if args.time_limit < 0:
         return f'--time-limit {args.time_limit}: must be >= 0 minutes'
-    if not 0 <= args.realtime <= 99:
-        return f'--realtime {args.realtime}: must be in [1, 99] (SCHED_FIFO priority; 0 = off)'
+    top = 99 - max(REALTIME_ABOVE.values())
+    if not 0 <= args.realtime <= top:
+        return (f'--realtime {args.realtime}: must be in [1, {top}] (SCHED_FIFO priority of the '
+                f'modules; the simulator and the arbiter run above it; 0 = off)')
     return None
 
 

@@ -14,6 +14,13 @@ allows it to root, to a process with ``CAP_SYS_NICE``, or up to the ``rtprio`` l
 (``ulimit -r``); without that right the node logs why and runs with the default scheduling
 (fail-soft). The kernel keeps 5% of each second for normal processes
 (``/proc/sys/kernel/sched_rt_runtime_us``), so a runaway node cannot lock the machine up.
+A process granted the priority also asks the kernel for a CPU wake-up latency of 0 µs for as
+long as it lives (:func:`hold_cpu_wakeup_latency`, the PM QoS request
+``/dev/cpu_dma_latency`` that ``cyclictest`` makes by default): idle cores then poll instead of
+halting, so the next hop's wakeup does not pay a halted core's exit (on a VM, a trip through the
+hypervisor). Measured on the 2-core VM of docs/benchmarks.md, it is what brings the round trip's
+p99 at the robot's pace under 5 ms; the price is idle cores that stay busy (power, and a VM's
+host sees them at 100%).
 
 Ctrl-C or SIGTERM shuts the rclpy context down from a signal handler, possibly while the
 executor is building its wait set or taking a message. rclpy then raises from inside the
@@ -28,17 +35,24 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 import gc
 import os
+import struct
 import time
 
 import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ['SHUTDOWN_RACES', 'RCLError', 'realtime', 'realtime_logged',
+__all__ = ['CPU_WAKEUP_DEVICE', 'SHUTDOWN_RACES', 'RCLError', 'hold_cpu_wakeup_latency',
+           'realtime', 'realtime_logged',
            'reraise_unless_shut_down', 'settle_heap']
 
 RCLError = _rclpy.RCLError
 #: What the executor may raise when the context is shut down under it.
 SHUTDOWN_RACES = (RCLError, RuntimeError)
+#: Linux's PM QoS interface for the CPU wake-up latency (microseconds, a native int32).
+CPU_WAKEUP_DEVICE = '/dev/cpu_dma_latency'
+#: The open requests of this process: the kernel keeps a request while its file is open and
+#: drops it when the process ends, however it ends.
+_WAKEUP_HELD: dict[str, int] = {}
 
 
 def reraise_unless_shut_down(grace: float = 1.0, context: rclpy.Context | None = None) -> None:
@@ -69,10 +83,40 @@ def _threads() -> list[int]:
         return [0]
 
 
+def hold_cpu_wakeup_latency(device: str = CPU_WAKEUP_DEVICE) -> tuple[bool, str]:
+    """Ask the kernel for a CPU wake-up latency of 0 µs until this process ends (module
+    docstring), fail-soft: the request is the int32 0 written to ``device``, kept open.
+
+    Returns
+    -------
+    (bool, str)
+        Whether the request is held, and what was done or why not (root only by default; no
+        such device in a container). Nothing is raised.
+    """
+    if device in _WAKEUP_HELD:
+        return True, f'CPU wake-up latency 0 us held ({device})'
+    try:
+        fd = os.open(device, os.O_WRONLY)
+    except OSError as exc:
+        return False, (f'CPU wake-up latency not held ({device}: {exc.strerror or exc}): idle '
+                       'cores may halt between instants')
+    try:
+        os.write(fd, struct.pack('=i', 0))
+    except OSError as exc:
+        os.close(fd)
+        return False, (f'CPU wake-up latency not held ({device}: {exc.strerror or exc}): idle '
+                       'cores may halt between instants')
+    _WAKEUP_HELD[device] = fd
+    return True, f'CPU wake-up latency 0 us held ({device}: idle cores poll)'
+
+
 def realtime(priority: int, threads: Iterable[int] | None = None,
-             setter: Callable[[int, int, object], None] | None = None) -> tuple[bool, str]:
+             setter: Callable[[int, int, object], None] | None = None,
+             wakeup_device: str | None = CPU_WAKEUP_DEVICE) -> tuple[bool, str]:
     """Put every thread of this process (``threads``: these) under ``SCHED_FIFO`` at
-    ``priority`` (1-99; 0 = leave the scheduling alone), fail-soft (module docstring).
+    ``priority`` (1-99; 0 = leave the scheduling alone), fail-soft (module docstring); once
+    granted, hold the CPU wake-up latency at 0 µs through ``wakeup_device``
+    (:func:`hold_cpu_wakeup_latency`; None: not).
 
     Threads started later (by a thread under ``SCHED_FIFO``) inherit it.
 
@@ -81,7 +125,8 @@ def realtime(priority: int, threads: Iterable[int] | None = None,
     (bool, str)
         Whether every thread got the priority, and a line for the log that says what was done
         or why not (no right to it, no ``SCHED_FIFO`` on this system), and that the node runs
-        with the default scheduling then. Nothing is raised.
+        with the default scheduling then; and whether the wake-up latency is held. Nothing is
+        raised.
     """
     if priority <= 0:
         return False, 'default scheduling (real-time priority off)'
@@ -109,7 +154,10 @@ def realtime(priority: int, threads: Iterable[int] | None = None,
                    f'of at least {priority}' if isinstance(exc, PermissionError) else str(exc))
             return False, (f'real-time priority {priority} (SCHED_FIFO) {why}: running with '
                            'the default scheduling')
-    return True, f'real-time priority: SCHED_FIFO {priority} on {done} threads'
+    said = f'real-time priority: SCHED_FIFO {priority} on {done} threads'
+    if wakeup_device is not None:
+        said += '; ' + hold_cpu_wakeup_latency(wakeup_device)[1]
+    return True, said
 
 
 def realtime_logged(priority: int, logger) -> bool:
