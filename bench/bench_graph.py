@@ -52,6 +52,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
+from clis_learner.graph import REALTIME_ABOVE  # noqa: E402
 from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 TICK = os.sysconf('SC_CLK_TCK')
@@ -186,7 +187,9 @@ def measure(seconds: float, single: bool, executor: str = 'lean',
     logs = ''.join(f.read_text(errors='replace') for f in (out / 'logs').glob('*.log')) \
         if (out / 'logs').is_dir() else ''
     granted = logs.count('real-time priority: SCHED_FIFO')
+    held = logs.count('CPU wake-up latency 0 us held')
     return {'single_process': single, 'realtime': realtime, 'realtime_granted': granted,
+            'wakeup_held': held,
             'executor': executor, 'speed': speed, 'wall_s': wall,
             'sim_s': sim,
             'rtf': sim / wall, 'paused_s': float(gaps[gaps > 0.02].sum()),
@@ -244,8 +247,10 @@ def granted(r: dict) -> str:
     """Whether ``--realtime`` took effect (the nodes that logged SCHED_FIFO)."""
     if not r['realtime']:
         return ''
-    return (f'SCHED_FIFO {r["realtime"]} on {r["realtime_granted"]} nodes' if
-            r['realtime_granted'] else 'SCHED_FIFO refused: default scheduling')
+    top = r['realtime'] + max(REALTIME_ABOVE.values())
+    return (f'SCHED_FIFO {r["realtime"]}-{top} on {r["realtime_granted"]} nodes, CPU wake-up '
+            f'latency held by {r.get("wakeup_held", 0)}' if r['realtime_granted'] else
+            'SCHED_FIFO refused: default scheduling')
 
 
 def cpu_line(r: dict) -> str:

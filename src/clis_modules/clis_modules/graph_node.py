@@ -71,7 +71,9 @@ class GraphParams:
                                        'services and QoS-incompatibility events are served')
     realtime_priority: int = param(0, 99, doc='SCHED_FIFO priority of the nodes on the '
                                    'sensor-to-command path (modules, arbiter; not the learner); '
-                                   '0 = default scheduling. Fail-soft without the right to it')
+                                   '0 = default scheduling; > 0 also holds the CPU wake-up '
+                                   'latency at 0 us (idle cores poll). Fail-soft without the '
+                                   'right to it')
 
     def proposal_qos(self, depth: int = STREAM_DEPTH) -> QoSProfile:
         """QoS of a module's proposals with this ``liveliness_lease``: see :func:`proposal_qos`."""

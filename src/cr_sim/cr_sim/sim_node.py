@@ -82,7 +82,9 @@ class SimNodeParams:
     executor: str = param(choices=('lean', 'single'), doc="rclpy executor: 'lean' "
                           "(cr_sim.executor.LeanExecutor) or 'single' (SingleThreadedExecutor)")
     realtime_priority: int = param(0, 99, doc='SCHED_FIFO priority of the node (every thread); '
-                                   '0 = default scheduling. Fail-soft without the right to it')
+                                   '0 = default scheduling; > 0 also holds the CPU wake-up '
+                                   'latency at 0 us (idle cores poll). Fail-soft without the '
+                                   'right to it')
     round_trip_log: str = param(doc="lockstep: append 'sim_time round_trip_ms' of every held "
                                 "instant to this file ('' = none); p50/p99 are logged at exit")
 
