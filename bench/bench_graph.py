@@ -249,7 +249,7 @@ def granted(r: dict) -> str:
         return ''
     top = r['realtime'] + max(REALTIME_ABOVE.values())
     return (f'SCHED_FIFO {r["realtime"]}-{top} on {r["realtime_granted"]} nodes, CPU wake-up '
-            f'latency held by {r.get("wakeup_held", 0)}' if r['realtime_granted'] else
+            f'latency held by {r["wakeup_held"]}' if r['realtime_granted'] else
             'SCHED_FIFO refused: default scheduling')
 
 

@@ -12,9 +12,9 @@ Measured at the graph's operating points: 4 round trips per second with every pr
 in between (the robot at real time: an Async decision instant every 0.25 s), and back to back
 (as fast as it goes), with the :class:`cr_sim.executor.LeanExecutor` (the graph's default)
 and rclpy's SingleThreadedExecutor; and with the LeanExecutor with all three processes (every
-thread) under ``SCHED_FIFO`` priority 10, as ``clis run --realtime 10`` runs the graph's
-sensor-to-command path (:func:`cr_sim.lifecycle.realtime`; needs root, CAP_SYS_NICE or
-``ulimit -r``, else that row says so). p50 / p99 in ms.
+thread) under ``SCHED_FIFO`` priority 10 with idle cores polling, as ``clis run --realtime
+10`` runs the graph's sensor-to-command path (:func:`cr_sim.lifecycle.realtime`; needs root,
+CAP_SYS_NICE or ``ulimit -r``, else that row says so). p50 / p99 in ms.
 
 Under all of it, the host: a busy loop pinned to each core (normal priority, nothing else
 running) reads the clock back to back and counts its stalls, the times the core was taken
@@ -171,6 +171,13 @@ def host_stalls(seconds: float) -> dict:
             'max_ms': float(gaps.max(initial=0.0)), 'steal_pct': 100.0 * steal}
 
 
+def host_cell(host: dict) -> str:
+    """:func:`host_stalls` in one line: stalls > 1 ms | > 5 ms per minute and core, the
+    longest, the steal."""
+    return (f'{host["over_1ms_per_min"]:.0f} | {host["over_5ms_per_min"]:.0f} per min, '
+            f'{host["max_ms"]:.1f} ms; steal {host["steal_pct"]:.1f}%')
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -191,10 +198,8 @@ def main() -> int:
     res = {}
     host = host_stalls(args.stall_seconds) if args.stall_seconds > 0 else None
     if host:
-        print(f'host stalls, a busy loop per core ({host["cores"]} x {host["seconds"]:.0f} s): '
-              f'{host["over_1ms_per_min"]:.0f} > 1 ms and {host["over_5ms_per_min"]:.0f} > 5 ms '
-              f'per minute and core, longest {host["max_ms"]:.1f} ms; steal '
-              f'{host["steal_pct"]:.1f}%', flush=True)
+        print(f'host stalls, a busy loop per core ({host["cores"]} x {host["seconds"]:.0f} s), '
+              f'> 1 ms | > 5 ms: {host_cell(host)}', flush=True)
     for rate, label in ((4.0, 'idle between (4 per s)'), (0.0, 'back to back')):
         for kind, prio in (('lean', 0), ('single', 0), ('lean', FIFO_PRIORITY)):
             # a fresh process for each: rclpy.init once per process
@@ -226,13 +231,13 @@ def main() -> int:
             {'measure': 'the host under it: stalls of a busy loop pinned to each core (nothing '
                         'else running; interrupts, kernel, hypervisor), > 1 ms | > 5 ms per '
                         'minute and core, longest; steal',
-             'value': f'{host["over_1ms_per_min"]:.0f} | {host["over_5ms_per_min"]:.0f} per '
-                      f'min, {host["max_ms"]:.1f} ms; steal {host["steal_pct"]:.1f}%'}]
+             'value': host_cell(host)}]
         Path(args.json).write_text(json.dumps({'results': res, 'host': host, 'rows': rows + [
             {'measure': 'floor: bare 3-process rclpy chain (origin -> relay -> relay -> '
                         'origin, Int64), round trip p50 / p99, 4 per s idle between: '
                         'LeanExecutor | SingleThreadedExecutor | LeanExecutor, all under '
-                        f'SCHED_FIFO {FIFO_PRIORITY}',
+                        f'SCHED_FIFO {FIFO_PRIORITY} (idle cores polling, as clis run '
+                        '--realtime)',
              'value': ' | '.join(cell(f'{k} idle between (4 per s)')
                                  for k in ('lean', 'single', 'lean fifo'))},
             {'measure': 'the same back to back',

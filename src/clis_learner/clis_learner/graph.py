@@ -144,12 +144,15 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     plan.children.append(Child('learner', 'clis_learner', 'learner', {
         **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume},
         restart='resume'))
-    control = {**graph, 'graph.realtime_priority': realtime} if realtime else graph
+
+    def priority(key: str, node: str) -> dict:
+        """``key``: ``node``'s SCHED_FIFO priority under ``--realtime`` (none without)."""
+        return {key: realtime + REALTIME_ABOVE.get(node, 0)} if realtime else {}
     plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', {
-        **graph, **({'graph.realtime_priority': realtime + REALTIME_ABOVE['arbiter']}
-                    if realtime else {})}))
+        **graph, **priority('graph.realtime_priority', 'arbiter')}))
     for name in modules:
-        plan.children.append(Child(name, 'clis_modules', name, dict(control)))
+        plan.children.append(Child(name, 'clis_modules', name, {
+            **graph, **priority('graph.realtime_priority', name)}))
     if robot == 'bridge':
         _plan_bridge(plan, seed, speed, arena, device)
         return plan
@@ -165,7 +168,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         'node.start_subscribers': matched,
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
-        **({'node.realtime_priority': realtime + REALTIME_ABOVE['sim']} if realtime else {})},
+        **priority('node.realtime_priority', 'sim')},
         restart='never'))
     return plan
 

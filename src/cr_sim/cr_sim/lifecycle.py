@@ -95,15 +95,13 @@ def hold_cpu_wakeup_latency(device: str = CPU_WAKEUP_DEVICE) -> tuple[bool, str]
     """
     if device in _WAKEUP_HELD:
         return True, f'CPU wake-up latency 0 us held ({device})'
+    fd = -1
     try:
         fd = os.open(device, os.O_WRONLY)
-    except OSError as exc:
-        return False, (f'CPU wake-up latency not held ({device}: {exc.strerror or exc}): idle '
-                       'cores may halt between instants')
-    try:
         os.write(fd, struct.pack('=i', 0))
     except OSError as exc:
-        os.close(fd)
+        if fd >= 0:
+            os.close(fd)
         return False, (f'CPU wake-up latency not held ({device}: {exc.strerror or exc}): idle '
                        'cores may halt between instants')
     _WAKEUP_HELD[device] = fd
