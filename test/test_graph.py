@@ -51,6 +51,20 @@ def finish(proc: subprocess.Popen, timeout: float) -> tuple[int, str]:
     return proc.returncode, out
 
 
+def told(failure: AssertionError, proc: subprocess.Popen, out: Path) -> AssertionError:
+    """``failure`` with what ``clis run`` printed and the end of each child's log (it is stopped).
+
+    A failure in a run of several processes says little by itself: a CI run once reported only
+    that a restarted module did not come back.
+    """
+    proc.send_signal(signal.SIGINT)
+    code, text = finish(proc, 60)
+    tails = [f'--- {log.name}:\n' + '\n'.join(log.read_text(errors='replace').splitlines()[-8:])
+             for log in sorted((out / 'logs').glob('*.log'))]
+    return AssertionError('\n'.join([str(failure), f'--- clis run (exit {code}):', text[-4000:],
+                                     *tails]))
+
+
 def readme_tables(repo: Path) -> dict[str, str]:
     """``{topic: pkg/msg/Type}`` of the README's robot-interface and graph topic tables."""
     text = (repo / 'README.md').read_text()
@@ -317,9 +331,12 @@ def test_killed_module_and_learner_rejoin_without_losing_an_update(tmp_path):
             assert list(resumed.effort) == list(params_before['view'].effort)
         k = len(learned(probe))
         assert probe.spin_until(lambda: len(learned(probe)) >= k + 2, 180)
+    except AssertionError as failure:
+        raise told(failure, proc, out) from None
     finally:
-        proc.send_signal(signal.SIGINT)
-        code, text = finish(proc, 60)
+        if proc.returncode is None:         # not stopped by told()
+            proc.send_signal(signal.SIGINT)
+            code, text = finish(proc, 60)
         probe.close()
     assert code == 130, text
     assert text.count('restarting') >= 2, text

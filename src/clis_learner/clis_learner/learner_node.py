@@ -234,7 +234,9 @@ class LearnerNode(GraphNode):
     def _closed(self, closed: Closed) -> None:
         """After an episode: checkpoint, parameters, CSV row, progress (module docstring)."""
         mark('learner_closed0', closed.t_end)
-        if not closed.row['complete']:
+        # (an episode not learned, e.g. one a restarted learner sees in the ``episode`` topic's
+        # history, without its rewards, is not a loss to report)
+        if closed.learned and not closed.row['complete']:
             self.get_logger().warning(
                 f'episode {closed.episode}: the rewards received sum to '
                 f'{closed.row["ret"]:.3f}, the simulator says {closed.sim_return:.3f}: reward '
