@@ -266,7 +266,8 @@ def test_killed_module_and_learner_rejoin_without_losing_an_update(tmp_path):
     out = tmp_path / 'run'
     probe = Probe('kill_probe')
     listen_all(probe)
-    proc = clis_run(out, '--condition', 'async', '--episodes', '40', '--seed', '5')
+    # more episodes than the test waits for (it stops the run): a slow host does not end it
+    proc = clis_run(out, '--condition', 'async', '--episodes', '400', '--seed', '5')
     try:
         assert probe.spin_until(lambda: len(learned(probe)) >= 2, 180), 'no episode learned'
         # -- a module: kill the acting one early in an episode
