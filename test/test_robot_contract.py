@@ -128,10 +128,8 @@ def test_topics_types_frames_and_rates(robot):
         stamps = [stamp(m) for m in p.msgs[topic]]
         assert len(stamps) > 10, topic
         assert all(b > a for a, b in zip(stamps, stamps[1:])), f'{topic}: stamps increase'
-        if topic == 'reward':       # only within episodes (the bridge wanders between them)
-            assert 1.0 / float(np.median(np.diff(stamps))) == pytest.approx(rate, rel=0.15)
-        else:
-            assert_rate(stamps, rate, topic)
+        # rewards only within episodes (the bridge wanders between them)
+        assert_rate(stamps, rate, topic, min_arrived=0.0 if topic == 'reward' else 0.6)
         if topic in ('/clock', 'ir', 'reward'):
             steps = np.diff(stamps)
             assert np.allclose(steps[steps < 0.075], TICK, atol=2e-3), f'{topic}: 50 ms grid'
