@@ -81,6 +81,21 @@ class Probe:
     def spin_for(self, seconds: float) -> None:
         self.spin_until(lambda: False, seconds)
 
+    def drain(self, quiet: float = 1.0, timeout: float = 60.0) -> bool:
+        """Take what is queued: spin until nothing has arrived for ``quiet`` seconds.
+
+        Samples stay in a reader's queue after their publisher has gone, so a probe that lags
+        a fast graph still gets them once the graph has stopped, if its queue held them all.
+        """
+        seen = {'n': -1, 'at': time.monotonic()}
+
+        def still() -> bool:
+            n = sum(len(v) for v in self.msgs.values())
+            if n != seen['n']:
+                seen['n'], seen['at'] = n, time.monotonic()
+            return time.monotonic() - seen['at'] >= quiet
+        return self.spin_until(still, timeout)
+
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()

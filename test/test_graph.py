@@ -33,6 +33,8 @@ pytestmark = pytest.mark.ros
 PERIODS = dict(condition_periods(load_module_params(), 'async'))
 MODULES = list(PERIODS)
 GRAPH = ros_parameters(config_dir() / 'graph.yaml', '/**')['graph']
+# > any stream's messages in the 4-episode run (wheels: ~4900), so the probe loses none
+RUN_DEPTH = 10000
 
 
 def clis_run(out: Path, *args: str) -> subprocess.Popen:
@@ -85,15 +87,17 @@ def stamp(msg) -> float:
     return from_time(msg.header.stamp)
 
 
-def listen_all(probe: Probe) -> None:
-    # deep queues: the graph runs many times faster than real time
+def listen_all(probe: Probe, depth: int = 1000) -> None:
+    """Deep queues: the graph runs many times faster than real time, and this probe (Python,
+    one message at a time) lags it. A queue that overflows loses its oldest messages: a CI run
+    once had none of the first episode's wheels left."""
     for name in MODULES:
-        probe.listen(JointState, f'{name}/proposal', depth=1000)
+        probe.listen(JointState, f'{name}/proposal', depth=depth)
         probe.listen(JointState, f'{name}/params', latched=True)
     for topic in ('arbiter/selection', 'arbiter/action', 'wheels'):
-        probe.listen(JointState, topic, depth=1000)
-    probe.listen(TwistStamped, 'cmd_vel', depth=1000)
-    probe.listen(OccupancyGrid, 'place/belief', depth=1000)
+        probe.listen(JointState, topic, depth=depth)
+    probe.listen(TwistStamped, 'cmd_vel', depth=depth)
+    probe.listen(OccupancyGrid, 'place/belief', depth=depth)
     probe.listen(DiagnosticArray, 'episode', latched=True)
     probe.listen(DiagnosticArray, 'learner/progress', latched=True)
 
@@ -130,7 +134,7 @@ def delivered(probe: Probe) -> list[tuple[float, float]]:
 def async_run(tmp_path_factory):
     out = tmp_path_factory.mktemp('graph') / 'run'
     probe = Probe('graph_probe')
-    listen_all(probe)
+    listen_all(probe, depth=RUN_DEPTH)
     proc = clis_run(out, '--condition', 'async', '--episodes', '4', '--seed', '4')
     graph = {'nodes': set(), 'next': 0.0}
 
@@ -143,6 +147,7 @@ def async_run(tmp_path_factory):
                                              'clis_run'} <= graph['nodes']
     ok = probe.spin_until(seen_all, 180)
     probe.spin_until(lambda: proc.poll() is not None, 240)
+    probe.drain()                               # what the lagging probe has not yet taken
     code, text = finish(proc, 30)
     yield {'probe': probe, 'graph': graph, 'code': code, 'out': out, 'text': text, 'ok': ok}
     probe.close()
@@ -233,12 +238,14 @@ def test_lockstep_answers_every_decision_instant_and_draws_once_per_episode(asyn
     """The clock stands at every decision instant t0 + l tau_i until the arbiter answers it
     (a cmd_vel stamped with it); between two, the clock runs through without waiting."""
     probe = async_run['probe']
+    assert max(len(m) for m in probe.msgs.values()) < RUN_DEPTH   # no queue overflowed
     cmd = {round(stamp(m), 6) for m in probe.msgs['cmd_vel']}
     for t0, t_end in delivered(probe):
         instants = [round(stamp(m), 6) for m in probe.msgs['wheels']
                     if t0 - 1e-6 <= stamp(m) < t_end - 1e-6]
         due = [t for t in instants if any(on_grid(t, t0, tau) for tau in PERIODS.values())]
-        assert due and all(t in cmd for t in due)
+        assert due, f'no wheels at a decision instant of [{t0}, {t_end}]: {len(instants)} seen'
+        assert all(t in cmd for t in due), sorted(set(due) - cmd)
         assert len(due) < len(instants)                        # not every instant is held
         draws = [m for m in probe.msgs['arbiter/selection']
                  if t0 - 1e-6 <= stamp(m) <= t_end + 1e-6]
@@ -265,7 +272,7 @@ def _pid(parent: int, exe: str) -> int:
 def test_killed_module_and_learner_rejoin_without_losing_an_update(tmp_path):
     out = tmp_path / 'run'
     probe = Probe('kill_probe')
-    listen_all(probe)
+    listen_all(probe, depth=RUN_DEPTH)
     # more episodes than the test waits for (it stops the run): a slow host does not end it
     proc = clis_run(out, '--condition', 'async', '--episodes', '400', '--seed', '5')
     try:
@@ -367,3 +374,4 @@ def test_loopback_only_while_the_graph_runs(tmp_path):
     finally:
         code, text = finish(proc, 180)
     assert code == 0, text
+
