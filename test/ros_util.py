@@ -63,12 +63,18 @@ class Probe:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.msgs: dict[str, list] = defaultdict(list)
+        # publication sequence number of each message in msgs (DDS numbers a publisher's
+        # messages 1, 2, ...): a missing number is a message this probe did not receive
+        self.seqs: dict[str, list[int]] = defaultdict(list)
 
     def listen(self, msg_type, topic: str, latched: bool = False, depth: int = 100) -> None:
         qos = QoSProfile(depth=depth, durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
                          else DurabilityPolicy.VOLATILE)
-        self.node.create_subscription(msg_type, topic,
-                                      lambda m, t=topic: self.msgs[t].append(m), qos)
+
+        def take(msg, info, topic=topic) -> None:
+            self.msgs[topic].append(msg)
+            self.seqs[topic].append(info['publication_sequence_number'])
+        self.node.create_subscription(msg_type, topic, take, qos)
 
     def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
         deadline = time.monotonic() + timeout

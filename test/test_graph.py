@@ -124,10 +124,32 @@ def episodes(probe: Probe) -> list[tuple[float, float]]:
     return out
 
 
-def delivered(probe: Probe) -> list[tuple[float, float]]:
-    """The ended episodes but the last: when the run has learned enough, `clis run` stops the
-    nodes, and what a node had not yet delivered to this (slower) probe is lost with it."""
-    return episodes(probe)[:-1]
+def received_all(probe: Probe, topic: str, t0: float, t_end: float) -> bool:
+    """Whether the probe has every message of ``topic`` (one publisher) stamped in
+    [t0, t_end]: the publication sequence numbers run without a gap from the publisher's first
+    message, or the last one received before t0, to the first one received after t_end."""
+    seqs = np.array(probe.seqs[topic])
+    t = np.array([stamp(m) for m in probe.msgs[topic]])
+    before, after = seqs[t < t0 - 1e-6], seqs[t > t_end + 1e-6]
+    if after.size == 0:                                   # the stream ends (or stalls) in it
+        return False
+    first = before.max() if before.size else 1
+    return set(range(first, after.min() + 1)) <= set(seqs.tolist())
+
+
+def delivered(probe: Probe, *topics: str) -> list[tuple[float, float]]:
+    """The ended episodes of which the probe has every message on ``topics``.
+
+    This probe (Python, one message at a time) lags the graph, and on a loaded host its reader
+    loses packets. A reliable stream repairs a loss when its publisher next asks for an
+    acknowledgement (a heartbeat) if the message is still in the publisher's queue; until then
+    it delivers nothing after the loss. When the run has learned enough `clis run` stops the
+    nodes, and what was not yet repaired is lost with them. With six busy loops on two cores a
+    run's cmd_vel reached this probe only up to 76.8 s of 240 s, and its wheels with holes.
+    So the checks judge only the episodes (never the last) whose messages all arrived.
+    """
+    return [(t0, t_end) for t0, t_end in episodes(probe)[:-1]
+            if all(received_all(probe, topic, t0, t_end) for topic in topics)]
 
 
 @pytest.fixture(scope='module')
@@ -196,7 +218,7 @@ def test_nodes_topics_and_types_match_the_readme(async_run, repo):
 
 def test_modules_propose_at_their_periods_under_sim_time(async_run):
     probe = async_run['probe']
-    spans = delivered(probe)
+    spans = delivered(probe, *(f'{name}/proposal' for name in MODULES))
     assert spans
     for name, tau in PERIODS.items():
         t = np.array(sorted({stamp(m) for m in probe.msgs[f'{name}/proposal']}))
@@ -218,7 +240,8 @@ def test_place_belief_is_an_occupancy_grid_at_its_decisions(async_run):
     assert grids, 'no belief received'
     decided = {round(stamp(m), 6) for m in probe.msgs['place/proposal']}
     # (in the episodes delivered: the graph stops while the last one's messages travel)
-    spans = delivered(probe)
+    spans = delivered(probe, 'place/belief', 'place/proposal')
+    assert spans
     shown = {round(stamp(g), 6) for g in grids
              if any(t0 - 1e-6 <= stamp(g) <= t_end + 1e-6 for t0, t_end in spans)}
     assert shown and shown <= decided
@@ -240,7 +263,9 @@ def test_lockstep_answers_every_decision_instant_and_draws_once_per_episode(asyn
     probe = async_run['probe']
     assert max(len(m) for m in probe.msgs.values()) < RUN_DEPTH   # no queue overflowed
     cmd = {round(stamp(m), 6) for m in probe.msgs['cmd_vel']}
-    for t0, t_end in delivered(probe):
+    spans = delivered(probe, 'wheels', 'cmd_vel', 'arbiter/selection')
+    assert spans
+    for t0, t_end in spans:
         instants = [round(stamp(m), 6) for m in probe.msgs['wheels']
                     if t0 - 1e-6 <= stamp(m) < t_end - 1e-6]
         due = [t for t in instants if any(on_grid(t, t0, tau) for tau in PERIODS.values())]
@@ -374,4 +399,6 @@ def test_loopback_only_while_the_graph_runs(tmp_path):
     finally:
         code, text = finish(proc, 180)
     assert code == 0, text
+
+
 
