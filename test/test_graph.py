@@ -33,7 +33,7 @@ pytestmark = pytest.mark.ros
 PERIODS = dict(condition_periods(load_module_params(), 'async'))
 MODULES = list(PERIODS)
 GRAPH = ros_parameters(config_dir() / 'graph.yaml', '/**')['graph']
-# > any stream's messages in the 4-episode run (wheels: ~4900), so the probe loses none
+# the probe's queues: more than any stream's messages in the 4-episode run (wheels: ~4900)
 RUN_DEPTH = 10000
 
 
@@ -87,17 +87,17 @@ def stamp(msg) -> float:
     return from_time(msg.header.stamp)
 
 
-def listen_all(probe: Probe, depth: int = 1000) -> None:
+def listen_all(probe: Probe) -> None:
     """Deep queues: the graph runs many times faster than real time, and this probe (Python,
     one message at a time) lags it. A queue that overflows loses its oldest messages: a CI run
-    once had none of the first episode's wheels left."""
+    once had none of the first episode's wheels left (1000 deep)."""
     for name in MODULES:
-        probe.listen(JointState, f'{name}/proposal', depth=depth)
+        probe.listen(JointState, f'{name}/proposal', depth=RUN_DEPTH)
         probe.listen(JointState, f'{name}/params', latched=True)
     for topic in ('arbiter/selection', 'arbiter/action', 'wheels'):
-        probe.listen(JointState, topic, depth=depth)
-    probe.listen(TwistStamped, 'cmd_vel', depth=depth)
-    probe.listen(OccupancyGrid, 'place/belief', depth=depth)
+        probe.listen(JointState, topic, depth=RUN_DEPTH)
+    probe.listen(TwistStamped, 'cmd_vel', depth=RUN_DEPTH)
+    probe.listen(OccupancyGrid, 'place/belief', depth=RUN_DEPTH)
     probe.listen(DiagnosticArray, 'episode', latched=True)
     probe.listen(DiagnosticArray, 'learner/progress', latched=True)
 
@@ -156,7 +156,7 @@ def delivered(probe: Probe, *topics: str) -> list[tuple[float, float]]:
 def async_run(tmp_path_factory):
     out = tmp_path_factory.mktemp('graph') / 'run'
     probe = Probe('graph_probe')
-    listen_all(probe, depth=RUN_DEPTH)
+    listen_all(probe)
     proc = clis_run(out, '--condition', 'async', '--episodes', '4', '--seed', '4')
     graph = {'nodes': set(), 'next': 0.0}
 
@@ -297,7 +297,7 @@ def _pid(parent: int, exe: str) -> int:
 def test_killed_module_and_learner_rejoin_without_losing_an_update(tmp_path):
     out = tmp_path / 'run'
     probe = Probe('kill_probe')
-    listen_all(probe, depth=RUN_DEPTH)
+    listen_all(probe)
     # more episodes than the test waits for (it stops the run): a slow host does not end it
     proc = clis_run(out, '--condition', 'async', '--episodes', '400', '--seed', '5')
     try:
@@ -399,6 +399,3 @@ def test_loopback_only_while_the_graph_runs(tmp_path):
     finally:
         code, text = finish(proc, 180)
     assert code == 0, text
-
-
-
