@@ -9,7 +9,7 @@ if [ -f "$_clis_root/.venv/bin/activate" ] && [ "${VIRTUAL_ENV:-}" != "$_clis_ro
   source "$_clis_root/.venv/bin/activate"
 fi
 if [ "${ROS_DISTRO:-}" != "jazzy" ]; then
-  # The venv prefix is the ROS underlay when rclpy comes from PyPI wheels (DESIGN.md §8).
+  # The venv prefix is the ROS underlay when rclpy comes from PyPI wheels (docs/design.md §8).
   case ":${AMENT_PREFIX_PATH:-}:" in
     *":$_clis_root/.venv:"*) ;;
     *) export AMENT_PREFIX_PATH="$_clis_root/.venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}" ;;

@@ -1,6 +1,6 @@
 """The DDS environment every process of the project starts with: loopback only by default.
 
-DESIGN.md §8: with the Fast DDS profile ``config/fastdds_loopback.xml`` (loaded through
+docs/design.md §8: with the Fast DDS profile ``config/fastdds_loopback.xml`` (loaded through
 ``FASTRTPS_DEFAULT_PROFILES_FILE``) and ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, nodes send
 nothing on non-loopback interfaces. Each run picks its own ``ROS_DOMAIN_ID`` (unless one is
 set) so parallel runs on one machine don't cross-talk. Talking to a robot on another machine is

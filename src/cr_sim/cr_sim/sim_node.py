@@ -5,7 +5,7 @@ ground-truth ``odom``, ``markers`` and ``/clock``; subscribes to ``cmd_vel``; of
 ``reset`` service (std_srvs/Trigger). The core (:class:`cr_sim.core.sim.Simulator`) steps at
 ``episode.dt`` of sim time; the node paces it at ``node.speed_factor`` times real time
 (0 = as fast as possible). Timers of nodes running with ``use_sim_time`` skip rather than replay
-missed periods (DESIGN.md §8), so one tick of sim time (50 ms) must stay below the shortest
+missed periods (docs/design.md §8), so one tick of sim time (50 ms) must stay below the shortest
 module period (250 ms): it does by construction.
 
 Gates (:mod:`cr_sim.core.gate`): with ``node.start_subscribers`` the first episode waits until

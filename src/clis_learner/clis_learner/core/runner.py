@@ -8,11 +8,11 @@ decides through its :class:`~clis_modules.core.decider.Decider`, the arbiter sel
 that :class:`~clis_learner.core.learner.Learner` learns from. Only where the inputs come from
 and when differs: here every record is made by this loop, in the nodes it arrives as a message.
 
-Time (DESIGN.md §6): the simulator advances in ticks of ``episode.dt`` (50 ms). Module ``i``
+Time (docs/design.md §6): the simulator advances in ticks of ``episode.dt`` (50 ms). Module ``i``
 decides at every tick ``k`` with ``k mod n_i = 0``, ``n_i = tau_i / dt`` (5, 10, 24 ticks for
 250/500/1200 ms in **Async**; all 24 in **Sync**), reading the sensors of that instant. The
 robot executes the command in force, the acting module's proposal clipped to that module's
-speed limit ``v_max,i = min(1.3, d_react / tau_i)`` (DESIGN.md §3); the proposal itself (not
+speed limit ``v_max,i = min(1.3, d_react / tau_i)`` (docs/design.md §3); the proposal itself (not
 clipped) is what the learner's densities see. The reward of a tick is stamped at its end.
 
 Selection (3): ``arbiter.selection = episode`` draws the acting module once, from the values of
