@@ -34,7 +34,7 @@ Policy step (``learner.policy_step``): ``raw`` applies (9) literally to the grad
 m/s, whose size grows as ``v_max / sigma^2``; ``scaled`` (default) multiplies the W gradient by
 ``sigma^2 / v_max^2`` and the sigma gradient by ``sigma^2 / (2 d)``, the inverse Fisher
 information of the Gaussian (10) in its mean (per unit feature) and in sigma, so that alpha is a
-step in units of the speed limit whatever sigma and the period are (DESIGN Sec. 9: the paper's
+step in units of the speed limit whatever sigma and the period are (docs/design.md §9: the paper's
 alpha = 0.1 on the raw gradient was unstable).
 
 Diagnostics (one dict per module, all floats, see :data:`DIAGNOSTIC_KEYS`):

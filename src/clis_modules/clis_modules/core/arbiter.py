@@ -4,7 +4,7 @@
 
 ``(1 - gamma_i) V_i`` is the value as a reward *rate* per decision of module i; with
 ``beta = 1`` and returns of at most 1 the exponents differ by at most ``1 - gamma_i`` (~0.02
-to 0.11 with the default periods), so the selection is almost uniform (DESIGN Sec. 2, 9).
+to 0.11 with the default periods), so the selection is almost uniform (docs/design.md §2, 9).
 
 Beyond the paper (``arbiter.rule = normalized``): ``Pr(i | x) ∝ exp(beta V_i(x) / s(x))`` with
 ``s(x) = max(max_j |V_j(x)|, scale_min)``, the values normalised by their scale. All modules
@@ -14,7 +14,7 @@ module returns more; dividing by the scale makes ``beta`` a contrast (beta = 5: 
 drops the ``(1 - gamma_i)`` weight that favours the slow modules 4.5x in Async. CRAIL (Uchibe
 2018) likewise weights its mixture by the modules' performance.
 
-When to select is an ambiguity of the paper (DESIGN Sec. 2): ``episode`` (default) draws one
+When to select is an ambiguity of the paper (docs/design.md §2): ``episode`` (default) draws one
 module at the episode start from the start-state values and keeps it -- what the importance
 sampling of (4)-(6) assumes, one behaviour policy per episode; ``decision`` redraws at every
 decision of any module, from each module's value at its latest features.
@@ -355,7 +355,7 @@ class Selector:
         self.acting = i
         u = self.latest[i].u
         v = self.v_max[i]
-        # the robot executes the acting module's proposal within its speed limit (DESIGN 3)
+        # the robot executes the acting proposal within its speed limit (docs/design.md §3)
         # = np.clip(u, -v, v), without its Python wrapper
         return Command(float(t), i, u, np.minimum(np.maximum(u, -v), v), drawn)
 

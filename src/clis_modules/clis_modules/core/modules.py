@@ -1,4 +1,4 @@
-"""The three CLIS modules (paper III-B..D, DESIGN Sec. 1 and 3) and their parameters.
+"""The three CLIS modules (paper III-B..D, docs/design.md §1 and 3) and their parameters.
 
 Every module is a :class:`ModuleCore`: features ``b_i(x)`` of its own state, a Gaussian policy
 (10) ``u ~ N(v_max W_i b, sigma_i^2 I)`` over ``u = (v_left, v_right)`` [m/s], a linear value
@@ -13,13 +13,13 @@ view        9 x 9 RBFs over (theta_d, d_o) + not visible  learned by (9)        
 place       belief of the grid Markov localization        learned by (9)              1200 ms
 ==========  ============================================  ==========================  =========
 
-Speed limit (DESIGN Sec. 3): a module deciding every ``tau_i`` may drive at most
+Speed limit (docs/design.md §3): a module deciding every ``tau_i`` may drive at most
 ``v_max,i = min(v_wheel_max, d_react / tau_i)``, so it moves at most ``d_react`` between two
 decisions. Policy means are ``v_max,i W b`` (W dimensionless); the runner clamps the executed
 command to ``v_max,i``; densities are of the proposed (pre-clamp) action.
 
 Discount (11): ``gamma_i = gamma^(tau_i / base_tick)``. The paper prints ``gamma^{tau_i'}``;
-we read the exponent as the number of base ticks in the module's period (DESIGN Sec. 2), so one
+we read the exponent as the number of base ticks in a module's period (docs/design.md §2), so one
 second is discounted alike by every module and all optimise the same objective.
 
 The innate policy (paper III-B: "moves to the destination directly ... if the destination is
@@ -181,7 +181,7 @@ class ModuleParamsLike(Protocol):
 # ------------------------------------------------------------------------------ helpers
 
 def speed_limit(common: CommonParams, period: float) -> float:
-    """``v_max,i = min(v_wheel_max, d_react / tau_i)`` [m/s] (DESIGN Sec. 3)."""
+    """``v_max,i = min(v_wheel_max, d_react / tau_i)`` [m/s] (docs/design.md §3)."""
     return min(common.v_wheel_max, common.d_react / period)
 
 
@@ -191,7 +191,7 @@ def module_gamma(common: CommonParams, period: float) -> float:
 
 
 def condition_periods(params: ModuleParamsLike, condition: str) -> list[tuple[str, float]]:
-    """``(name, tau_i)`` of the modules of a condition (paper Sec. IV, DESIGN Sec. 3): one module
+    """``(name, tau_i)`` of the modules of a condition (paper IV, docs/design.md §3): one module
     on its own period, all three on their own periods (``async``) or all on the slowest one
     (``sync``); in the order innate, view, place."""
     if condition not in CONDITIONS:
@@ -423,7 +423,7 @@ def arena_map(arena: Any) -> tuple[np.ndarray, float, np.ndarray]:
 
 def make_modules(params: ModuleParamsLike, condition: str, landmarks_xy: ArrayLike,
                  half_size: float, boxes: ArrayLike | None = None) -> list[ModuleCore]:
-    """The modules of one experimental condition (paper Sec. IV, DESIGN Sec. 3).
+    """The modules of one experimental condition (paper Sec. IV, docs/design.md §3).
 
     Parameters
     ----------

@@ -5,7 +5,7 @@ Paper eq. (10)::
     pi_i(x, u) = eta_i exp(-||u - W_i b_i(x)||^2 / (2 sigma_i^2)),  eta_i = (2 pi sigma_i^2)^(-d/2)
 
 over the action ``u = (v_left, v_right)`` in m/s (d = 2). Here the mean is scaled to the
-module's speed limit, ``mu = v_max W b`` (DESIGN Sec. 3): ``W`` is dimensionless (a fraction of
+module's speed limit, ``mu = v_max W b`` (docs/design.md §3): ``W`` is dimensionless (a share of
 ``v_max`` per unit feature), so one ``W`` means the same behaviour whatever the module's period.
 This is (10) with ``W_i = v_max W``; the density is always over u in m/s, the common measure
 that makes the ratio of two modules' densities in (7) meaningful. It is the density of the

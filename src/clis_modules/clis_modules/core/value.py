@@ -17,7 +17,7 @@ def gamma_i(gamma: float, tau_i: float, base_tick: float) -> float:
     """Discount per decision of a module with period ``tau_i``, eq. (11).
 
     The paper prints ``gamma_i = gamma^{tau_i'}``; we read the exponent as the number of base
-    ticks ``Delta`` in the period (DESIGN Sec. 2): a second is discounted alike by every
+    ticks ``Delta`` in the period (docs/design.md §2): a second is discounted alike by every
     module, so all of them estimate (1) for the same objective.
 
     Parameters
