@@ -2,7 +2,7 @@
 #   make run    set up, then run the main job on the simulator
 #   make test   set up, then lint and run the test suite
 #   make bench  set up, then run the benchmarks (results in docs/benchmarks.md)
-#   make reproduce  the full paper reproduction (40 min on 2 cores without evaluation, ~2x with; docs/results.md)
+#   make reproduce  docs/results.md in full (batch 1: 5 min 18 s on 2 cores without evaluation)
 #   make equivalence  the node graph against the headless runner (docs/results.md; about 1 h)
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
