@@ -25,6 +25,7 @@ setup(
             'clis = clis_learner.cli:main',
             'learner = clis_learner.learner_node:main',
             'recorder = clis_learner.recorder_node:main',
+            'foxglove = clis_learner.foxglove_node:main',
         ],
     },
 )

@@ -455,6 +455,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--record', type=Path, metavar='BAG',
                    help='record every topic of the run into this bag folder (MCAP, e.g. '
                         'bags/NAME; see clis bag info / replay / learn)')
+    p.add_argument('--foxglove', type=int, nargs='?', const=8765, metavar='PORT',
+                   help='serve the topics live to the Foxglove app on ws://127.0.0.1:PORT '
+                        '(default 8765; docs/foxglove.md)')
     p.add_argument('--realtime', type=int, nargs='?', const=REALTIME_PRIORITY, default=0,
                    metavar='PRIO',
                    help='run the sensor-to-command path (modules, simulator, arbiter; not the '
@@ -520,6 +523,11 @@ def main(args: argparse.Namespace) -> int:
                       str(args.resume.resolve()) if args.resume else '', args.arena,
                       args.robot, args.device,
                       str(args.record.resolve()) if args.record else '', args.realtime)
+    if args.foxglove is not None:                    # the live view (docs/foxglove.md)
+        from clis_learner.foxglove_node import plan_live_view
+        if error := plan_live_view(plan, args):
+            print(f'clis run: {error}', file=sys.stderr)
+            return EXIT_CONFIG
     tty = sys.stderr.isatty() and not args.quiet
 
     def say(text: str) -> None:

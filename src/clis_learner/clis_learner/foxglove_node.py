@@ -1,0 +1,321 @@
+"""``ros2 run clis_learner foxglove``: a live view of the running graph in Foxglove.
+
+Serves the graph's topics on a Foxglove WebSocket (protocol ``foxglove.websocket.v1``, served by
+the ``foxglove-sdk`` package) bound to ``127.0.0.1:foxglove.port`` (default 8765; never another
+interface: from another machine, tunnel it, e.g. ``ssh -L 8765:127.0.0.1:8765 HOST``). Open it
+in the Foxglove app (Open connection, ``ws://127.0.0.1:8765``) with the layout
+``config/foxglove_layout.json``: docs/foxglove.md.
+
+Each topic is one channel with the bag's schema (encoding ``ros2msg``, named ``pkg/msg/Type``,
+the text of :func:`clis_learner.core.bag.message_definition`) and the bag's payloads: the
+serialized CDR bytes as they came off the wire, never decoded. The node subscribes *raw* to the
+topics the recorder records (:data:`clis_learner.recorder_node.GRAPH_TOPICS` at start, any
+other topic of the graph as it appears, looked for every ``foxglove.discovery_period`` s; or
+only ``foxglove.topics``), keeps the subscriptions out of the executor and takes every waiting
+message each ``foxglove.poll_period`` s of wall time (a take costs microseconds; a queue of
+``foxglove.depth`` holds what arrives meanwhile, and a view that falls behind loses the oldest
+messages, never slows a publisher). A topic's channel is advertised with its first message;
+each message is logged with its receive time (wall clock, as in the bags).
+
+Two channels are derived for the layout (only while a client subscribes to them):
+
+* ``/foxglove/path`` (``nav_msgs/msg/Path``): the robot's path since the current episode's
+  ``start`` (from ``odom``: a pose each ``foxglove.path_step`` m), sent every
+  ``foxglove.path_period`` s of wall time while it grows;
+* ``/foxglove/success`` (``geometry_msgs/msg/Vector3Stamped``, at each learned episode's end,
+  from ``learner/progress``): ``x`` = share of the last ``foxglove.block`` learned episodes
+  that reached the destination, ``y`` = learned episodes, ``z`` = 1 if this one reached it.
+
+When a client subscribes to a channel, the last message of its topic is sent again, so that a
+panel opened late shows the arena, the parameters and the current state at once (clients
+already subscribed get that message twice).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping
+import threading
+import time
+from typing import Any
+
+from clis_modules.graph_node import GraphNode, OnDemand, run_node
+from cr_sim import conversions as rconv
+from cr_sim.core.params import build, ConfigError, dataclass, param
+from cr_sim.ros_params import declare_from_config
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, Vector3Stamped
+from nav_msgs.msg import Odometry, Path
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidHandle
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
+
+from clis_learner.core.bag import BagError, message_definition
+from clis_learner.core.config import ClisParams
+from clis_learner.recorder_node import EXCLUDED, GRAPH_TOPICS, LATCHED_TOPICS, message_class
+
+__all__ = ['FoxgloveParams', 'FoxgloveNode', 'DEFAULTS', 'DEFAULT_PORT', 'HOST', 'PATH_TOPIC',
+           'SUCCESS_TOPIC', 'plan_live_view', 'main']
+
+#: The only interface the WebSocket listens on.
+HOST = '127.0.0.1'
+DEFAULT_PORT = 8765
+PATH_TOPIC = '/foxglove/path'
+SUCCESS_TOPIC = '/foxglove/success'
+#: The node's parameters (``foxglove.KEY``) and their defaults.
+DEFAULTS = {'foxglove': {
+    'port': DEFAULT_PORT, 'topics': '', 'depth': 100, 'poll_period': 0.02,
+    'discovery_period': 1.0, 'path_step': 0.02, 'path_period': 0.1, 'block': 50}}
+
+
+@dataclass(frozen=True)
+class FoxgloveParams:
+    """Settings of the live view (``-p foxglove.KEY:=VALUE``; defaults :data:`DEFAULTS`)."""
+
+    port: int = param(1, 65535, doc=f'TCP port of the WebSocket on {HOST}')
+    topics: str = param(doc="comma-separated topics to serve; '' = every topic of the graph")
+    depth: int = param(1, 100000, doc='queue depth of each subscription (older messages are '
+                                      'dropped when the view falls behind)')
+    poll_period: float = param(0.001, 1.0, doc='[s wall] how often the queues are emptied')
+    discovery_period: float = param(0.05, 60.0, doc='[s wall] how often new topics are looked '
+                                                    'for')
+    path_step: float = param(0.0, 10.0, doc='[m] distance between two poses of the path')
+    path_period: float = param(0.0, 60.0, doc='[s wall] least time between two path messages')
+    block: int = param(1, 100000, doc='learned episodes over which the success rate is taken')
+
+
+class _Listener:
+    """The WebSocket server's callbacks (its own thread): which channels got a subscriber."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.subscribed: set[int] = set()
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        with self.lock:
+            self.subscribed.add(int(channel.id))
+
+    def take(self) -> set[int]:
+        with self.lock:
+            out, self.subscribed = self.subscribed, set()
+        return out
+
+
+class FoxgloveNode(GraphNode):
+    """Raw subscriptions forwarded to a Foxglove WebSocket server (module docstring)."""
+
+    control_path = False                    # a viewer: never real-time
+
+    def __init__(self) -> None:
+        super().__init__('foxglove', clis_cls=ClisParams)
+        import foxglove                     # only here: the rest of the package runs without it
+
+        self.fox = foxglove
+        values = declare_from_config(self, DEFAULTS)
+        self.cfg: FoxgloveParams = build(FoxgloveParams, values['foxglove'], where='foxglove')
+        self.only = [self.resolve_topic_name(t.strip())
+                     for t in self.cfg.topics.split(',') if t.strip()]
+        self.subs: dict[str, tuple[str, Any]] = {}       # topic -> (type, subscription)
+        self.channels: dict[str, Any] = {}               # topic -> foxglove.Channel
+        self.last: dict[str, tuple[bytes, int]] = {}     # topic -> (payload, log time)
+        self.by_id: dict[int, str] = {}                  # channel id -> topic
+        self.path: deque = deque()
+        self.path_frame = ''
+        self.path_sent = (0, 0.0)                        # (poses sent, wall time)
+        self.reached: dict[int, int] = {}                # learned episode -> reached
+        self.closed = False
+        self.listener = _Listener()
+        try:
+            self.server = foxglove.start_server(name='clis', host=HOST, port=self.cfg.port,
+                                                server_listener=self.listener)
+        except Exception as exc:                         # noqa: BLE001 e.g. the port is taken
+            raise ConfigError(f'foxglove.port: cannot serve on {HOST}:{self.cfg.port} '
+                              f'({exc})') from None
+        self._polled = OnDemand(active=False)            # taken by _poll, never by the executor
+        wanted = {self.resolve_topic_name(t): typ for t, typ in GRAPH_TOPICS.items()}
+        if self.only:
+            wanted = {t: wanted[t] for t in self.only if t in wanted}
+        for topic in sorted(wanted, key=lambda t: not t.endswith('/episode')):
+            self._subscribe(topic, wanted[topic])
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(self.cfg.discovery_period, self._discover, clock=steady)
+        self.create_timer(self.cfg.poll_period, self._poll, clock=steady)
+        self.clock_on_demand()                           # no wakeup per /clock message
+        self.defer_housekeeping()
+        self.get_logger().info(f'Foxglove live view on ws://{HOST}:{self.server.port()} '
+                               '(layout: config/foxglove_layout.json, docs/foxglove.md)')
+
+    # ------------------------------------------------------------------ subscriptions
+
+    def _subscribe(self, topic: str, msg_type: str) -> None:
+        try:
+            cls = message_class(msg_type)
+        except (AttributeError, ImportError, ValueError) as exc:
+            self.get_logger().warning(f'{topic}: type {msg_type} not available ({exc}): '
+                                      'not served', once=True)
+            return
+        offered = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
+        latched = any(topic == self.resolve_topic_name(t) for t in LATCHED_TOPICS)
+        if offered:                                      # as the publishers offer it
+            latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+        reliable = not any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered)
+        qos = QoSProfile(
+            depth=self.cfg.depth,
+            reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+            durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                        else DurabilityPolicy.VOLATILE))
+        sub = self.create_subscription(cls, topic, lambda *_: None, qos, raw=True,
+                                       callback_group=self._polled)
+        self.subs[topic] = (msg_type, sub)
+
+    def _discover(self) -> None:
+        if self.closed:
+            return
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self.subs or topic.startswith('/foxglove/'):
+                continue
+            if (self.only and topic not in self.only) or (not self.only and topic in EXCLUDED):
+                continue
+            self._subscribe(topic, types[0])
+
+    # ------------------------------------------------------------------ forwarding
+
+    def channel(self, topic: str, msg_type: str) -> Any | None:
+        """The channel of ``topic`` (advertised now if new); None if its schema is unknown."""
+        chan = self.channels.get(topic)
+        if chan is None:
+            try:
+                text = message_definition(msg_type)
+            except BagError as exc:
+                self.get_logger().warning(f'{topic}: {exc}: not served', once=True)
+                return None
+            schema = self.fox.Schema(name=msg_type, encoding='ros2msg', data=text.encode())
+            chan = self.fox.Channel(topic, schema=schema, message_encoding='cdr')
+            self.channels[topic] = chan
+            self.by_id[chan.id()] = topic
+        return chan
+
+    def send(self, topic: str, msg_type: str, data: bytes, log_ns: int) -> None:
+        """Log ``data`` (CDR) on ``topic``'s channel and keep it as the topic's last message."""
+        chan = self.channel(topic, msg_type)
+        if chan is None:
+            return
+        self.last[topic] = (data, log_ns)
+        chan.log(data, log_time=log_ns)
+
+    def _poll(self) -> None:
+        """Forward every message waiting on any subscription, in receive order; then what the
+        derived channels need, and the last message of each newly subscribed channel."""
+        if self.closed:
+            return
+        batch = []
+        for name, (typ, sub) in self.subs.items():
+            try:
+                with sub.handle:
+                    while (got := sub.handle.take_message(sub.msg_type, True)) is not None:
+                        batch.append((got[1].get('received_timestamp') or time.time_ns(),
+                                      name, typ, got[0]))
+            except InvalidHandle:                        # destroyed meanwhile
+                continue
+        batch.sort(key=lambda b: b[0])
+        for recv, name, typ, data in batch:
+            self.send(name, typ, data, recv)
+            if typ == 'nav_msgs/msg/Odometry' and self._wanted(PATH_TOPIC):
+                self._on_odom(data)
+            elif typ == 'diagnostic_msgs/msg/DiagnosticArray':
+                self._on_event(name, data, recv)
+        self._send_path()
+        for cid in self.listener.take():                 # a client subscribed: latest again
+            topic = self.by_id.get(cid)
+            if topic in self.last:
+                self.channels[topic].log(self.last[topic][0], log_time=self.last[topic][1])
+
+    # ------------------------------------------------------------------ derived channels
+
+    def _wanted(self, topic: str) -> bool:
+        chan = self.channels.get(topic)
+        return chan is None or chan.has_sinks()
+
+    def _on_odom(self, data: bytes) -> None:
+        msg = deserialize_message(data, Odometry)
+        p = msg.pose.pose.position
+        if self.path:
+            q = self.path[-1].pose.position
+            if (p.x - q.x) ** 2 + (p.y - q.y) ** 2 < self.cfg.path_step ** 2:
+                return
+        self.path.append(PoseStamped(header=msg.header, pose=msg.pose.pose))
+        self.path_frame = msg.header.frame_id
+
+    def _send_path(self, force: bool = False) -> None:
+        sent, when = self.path_sent
+        if not self.path or len(self.path) == sent:
+            return
+        now = time.monotonic()
+        if not force and now - when < self.cfg.path_period:
+            return
+        msg = Path(poses=list(self.path))
+        msg.header.stamp, msg.header.frame_id = self.path[-1].header.stamp, self.path_frame
+        self.send(PATH_TOPIC, 'nav_msgs/msg/Path', serialize_message(msg), time.time_ns())
+        self.path_sent = (len(self.path), now)
+
+    def _on_event(self, topic: str, data: bytes, recv: int) -> None:
+        """An episode ``start`` clears the path; a learned episode's progress row updates the
+        success rate."""
+        try:
+            msg = deserialize_message(data, DiagnosticArray)
+            t, event, values = rconv.event_from_msg(msg)
+        except (IndexError, ValueError):
+            return
+        if topic.endswith('/episode') and event == 'start':
+            self._send_path(force=True)                  # the end of the last one
+            self.path.clear()
+            self.path_sent = (0, 0.0)
+        elif topic.endswith('/progress') and values.get('learned') == '1':
+            self._on_learned(msg, values, recv)
+
+    def _on_learned(self, msg: DiagnosticArray, values: Mapping[str, str], recv: int) -> None:
+        try:
+            episode = int(float(values['episode']))
+            self.reached[episode] = int(float(values.get('reached', 0)))
+        except (KeyError, ValueError):
+            return
+        recent = [self.reached[e] for e in sorted(self.reached)[-self.cfg.block:]]
+        out = Vector3Stamped()
+        out.header.stamp = msg.header.stamp
+        out.vector.x = sum(recent) / len(recent)
+        out.vector.y = float(len(self.reached))
+        out.vector.z = float(self.reached[episode])
+        self.send(SUCCESS_TOPIC, 'geometry_msgs/msg/Vector3Stamped', serialize_message(out),
+                  recv)
+
+    def close(self) -> None:
+        """Stop the server (called on Ctrl-C / SIGTERM by :func:`run_node`)."""
+        if self.closed:
+            return
+        self.closed = True
+        self.server.stop()
+
+
+def plan_live_view(plan: Any, args: Any) -> str | None:
+    """Add the live view to the children of a ``clis run`` (``--foxglove PORT``): one more
+    process, up before the robot interface and stopped last (as the recorder). An error text
+    for a bad port or ``--single-process``; else None."""
+    from clis_learner.graph import Child
+    if not 1 <= args.foxglove <= 65535:
+        return f'--foxglove {args.foxglove}: a TCP port in [1, 65535]'
+    if getattr(args, 'single_process', False):
+        return '--foxglove runs the live view as a process of its own: not with --single-process'
+    graph = {k: v for k, v in plan.children[0].params.items() if k.startswith('graph.')}
+    plan.children.insert(0, Child('foxglove', 'clis_learner', 'foxglove', {
+        **graph, 'foxglove.port': int(args.foxglove), 'foxglove.block': int(args.block)},
+        stop_last=True))
+    return None
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(FoxgloveNode, 'foxglove', __doc__, args)
+
+
+if __name__ == '__main__':
+    main()
