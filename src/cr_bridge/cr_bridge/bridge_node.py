@@ -27,6 +27,7 @@ are counted and dropped; no byte sequence on the line can crash it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import math
 import time
 
@@ -84,8 +85,9 @@ class BridgeNodeParams:
 class BridgeNode(Node):
     """Thin glue: link + parser -> cores -> messages; cmd_vel -> guard -> wheel frames."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__('bridge')
+        self.now = clock        # wall seconds; a test drives the watchdog and link timers
         # the robot's own keys (config/bridge.yaml) and the simulator's robot, sensors,
         # episode and wander sections (config/sim.yaml): the same dotted keys as the sim node
         defaults = ros_parameters(config_dir() / 'bridge.yaml', 'bridge')
@@ -135,7 +137,7 @@ class BridgeNode(Node):
         start = self.arena.starts[0]
         self.pose = np.array((start.x, start.y, start.heading))   # dead reckoning
         self.stats_total = proto.ParserStats()  # over all connections
-        self.t_wall0 = time.monotonic()
+        self.t_wall0 = self.now()
 
         open_robot_interface(self, self.arena, self.cfg.map_frame, self.cfg.cmd_vel_stamped,
                              self.cfg.wait_for_learner)
@@ -153,10 +155,10 @@ class BridgeNode(Node):
 
     def _on_cmd(self, msg) -> None:
         u = conv.wheels_from_cmd(msg, self.wheel_base)
-        if not self.guard.command(u, time.monotonic()):
+        if not self.guard.command(u, self.now()):
             self.get_logger().warning(f'rejected a non-finite cmd_vel {u.tolist()}: wheels '
                                       'stopped', throttle_duration_sec=1.0)
-        self._send_wheels(time.monotonic(), force=True)
+        self._send_wheels(self.now(), force=True)
 
     def _on_progress(self, msg) -> None:
         _, _, values = conv.event_from_msg(msg)
@@ -166,7 +168,7 @@ class BridgeNode(Node):
             self.get_logger().warning(f'unreadable learner progress: {values}')
 
     def _on_reset(self, request, response):
-        ev = self.episodes.end(self.t, time.monotonic(), 'service')
+        ev = self.episodes.end(self.t, self.now(), 'service')
         if ev is not None:
             self._publish_event(ev)
         self.guard.stop()
@@ -179,7 +181,7 @@ class BridgeNode(Node):
 
     def poll(self, timeout: float) -> None:
         """Read the link for at most ``timeout`` s, handle its frames, send what is due."""
-        now = time.monotonic()
+        now = self.now()
         if self.link is None:
             if now >= self.reconnect_at:
                 self._connect(now)
@@ -190,9 +192,9 @@ class BridgeNode(Node):
         try:
             data = self.link.read(timeout)
         except LinkError as exc:
-            self._lost(str(exc), time.monotonic())
+            self._lost(str(exc), self.now())
             return
-        now = time.monotonic()
+        now = self.now()
         if data:
             for frame in self.parser.feed(data):
                 self._on_frame(frame, now)
@@ -262,7 +264,7 @@ class BridgeNode(Node):
         try:
             self.link.write(self._frame(payload))
         except LinkError as exc:
-            self._lost(str(exc), time.monotonic())
+            self._lost(str(exc), self.now())
 
     def _send_wheels(self, now: float, force: bool = False) -> None:
         """Send the command in force when it changed or ``send_period`` passed."""
