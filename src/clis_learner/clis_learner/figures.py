@@ -6,6 +6,7 @@ Every figure is drawn from saved runs (:class:`clis_learner.core.runner.JobResul
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import matplotlib
@@ -19,19 +20,42 @@ MODULE_COLOURS = {'innate': 'black', 'view': 'magenta', 'place': 'green'}
 STARTS = ('A', 'B', 'C', 'D', 'E')
 
 
-def band(curves: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+#: Fewest seeds for a confidence band: with 2 the t-interval has 1 degree of freedom
+#: (t = 12.7) and spans more than the axis, which says nothing.
+MIN_BAND_SEEDS = 3
+
+
+def band(curves: np.ndarray, level: float = 0.95,
+         min_n: int = MIN_BAND_SEEDS) -> tuple[np.ndarray, np.ndarray]:
     """Mean and half-width of the ``level`` t-interval over axis 0 (seeds).
 
     Parameters
     ----------
     curves : np.ndarray, shape (n_seeds, n_points)
+    level : float
+        Confidence level of the interval.
+    min_n : int
+        Fewest seeds for an interval; with fewer the half-width is NaN (no band: draw or
+        print the seeds themselves and say so).
+
+    Returns
+    -------
+    mean, half : np.ndarray, shape (n_points,)
     """
+    curves = np.asarray(curves, float)
     mean = curves.mean(0)
     n = curves.shape[0]
-    if n < 2:
-        return mean, np.zeros_like(mean)
+    if n < max(min_n, 2):
+        return mean, np.full_like(mean, np.nan)
     half = stats.t.ppf(0.5 + level / 2, n - 1) * curves.std(0, ddof=1) / np.sqrt(n)
     return mean, half
+
+
+def band_note(n: int) -> str:
+    """What a figure or table says about its band for ``n`` seeds."""
+    if n >= MIN_BAND_SEEDS:
+        return f'mean, 95% t-band over n={n} seeds'
+    return f'n={n} seed{"s" if n > 1 else ""}: no band (fewer than {MIN_BAND_SEEDS} seeds)'
 
 
 def _labels(results) -> list[str]:
@@ -48,30 +72,45 @@ def _multi_module_labels(results) -> list[str]:
 
 
 def _save(fig, path: Path) -> None:
+    """Save and close ``fig``; written to a temporary file and renamed, so an interrupted
+    drawing never leaves half a PNG."""
+    path = Path(path)
+    tmp = path.with_name(f'.{path.name}.tmp')
     fig.tight_layout()
-    fig.savefig(path, dpi=120, bbox_inches='tight')
+    fig.savefig(tmp, dpi=120, bbox_inches='tight', format=path.suffix.lstrip('.') or 'png')
     plt.close(fig)
+    os.replace(tmp, path)
 
 
 def _curves(results, path: Path, curve, xlabel: str, ylabel: str, ymax: float,
             title: str) -> None:
-    """One line per condition with its 95% band over seeds; ``curve(runs) -> (x, curves)``
-    with ``curves`` of shape (n_seeds, n_points)."""
+    """One line per condition (with markers, so that a single point shows) and its 95% band
+    over seeds; with fewer than :data:`MIN_BAND_SEEDS` seeds no band but every seed drawn
+    thin. ``curve(runs) -> (x, curves)`` with ``curves`` of shape (n_seeds, n_points)."""
     labels = _labels(results)
     fig, ax = plt.subplots(figsize=(8, 4.2))
+    ns = set()
     for label in labels:
         runs = _runs(results, label)
         x, curves = curve(runs)
         mean, half = band(curves)
-        line, = ax.plot(x, mean, label=f'{label} (n={len(runs)})')
-        ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.15)
+        ns.add(len(runs))
+        line, = ax.plot(x, mean, marker='o', ms=3 if len(x) > 30 else 5,
+                        label=f'{label} (n={len(runs)})')
+        if np.isfinite(half).all():
+            ax.fill_between(x, mean - half, mean + half, color=line.get_color(), alpha=0.15)
+        elif len(runs) > 1:
+            for c in curves:
+                ax.plot(x, c, color=line.get_color(), lw=0.7, alpha=0.5, ls='--')
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_ylim(0, ymax)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc='upper center', bbox_to_anchor=(0.5, -0.2),
               ncol=2 if len(labels) > 5 else len(labels))
-    ax.set_title(title)
+    few = min(ns) < MIN_BAND_SEEDS
+    ax.set_title(title + ('\n' + band_note(min(ns)) + ' (seeds dashed)' if few else ''),
+                 fontsize=10 if few else None)
     _save(fig, path)
 
 
@@ -156,6 +195,23 @@ def draw_arena(ax, arena: dict) -> None:
     ax.set_xlim(fx0, fx1)
     ax.set_ylim(fy0, fy1)
     ax.set_aspect('equal')
+    ax.set_xlabel('x [m]')
+    ax.set_ylabel('y [m]')
+
+
+def arena_legend(fig) -> None:
+    """One legend below ``fig`` for what :func:`draw_arena` draws."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    handles = [Patch(color='tab:green', alpha=0.9, label='short obstacle'),
+               Patch(color='dimgray', alpha=0.9, label='tall obstacle'),
+               Line2D([], [], ls='', marker='o', color='red', alpha=0.6, ms=9,
+                      label='goal (destination)'),
+               Line2D([], [], ls='', marker='o', color='orange', mec='k', ms=7,
+                      label='landmark'),
+               Line2D([], [], ls='', marker='x', color='blue', label='start A-E')]
+    fig.legend(handles=handles, loc='lower center', ncol=len(handles), fontsize=7,
+               bbox_to_anchor=(0.5, -0.04))
 
 
 def fig4(results, path: Path) -> None:
@@ -179,9 +235,10 @@ def fig4(results, path: Path) -> None:
         draw_arena(ax, runs[0].arena)
         ax.set_title(f'{label}: Pr(M_pl | x)\n(mean of {len(runs)} seeds; '
                      f'grid {len(pm["x"])}x{len(pm["y"])})', fontsize=9)
-        fig.colorbar(im, ax=ax, fraction=0.046)
+        fig.colorbar(im, ax=ax, fraction=0.046).set_label('Pr(M_pl | x)')
     fig.suptitle('Fig. 4: probability of selecting the place module at the end of learning',
                  fontsize=10)
+    arena_legend(fig)
     _save(fig, path)
 
 
@@ -216,9 +273,10 @@ def fig4_modules(results, path: Path) -> None:
                            interpolation='nearest')
             draw_arena(ax, runs[0].arena)
             ax.set_title(f'{label}: Pr({name} | x) ({len(runs)} seeds)', fontsize=8)
-        fig.colorbar(im, ax=axes[row, -1], fraction=0.046)
+        fig.colorbar(im, ax=axes[row, -1], fraction=0.046).set_label('Pr(i | x)')
     fig.suptitle('Fig. 4 for every module: probability of being selected at the end of '
                  'learning', fontsize=10)
+    arena_legend(fig)
     _save(fig, path)
 
 
@@ -232,15 +290,18 @@ def fig5(results, path: Path) -> None:
         per_seed = np.array([[np.mean([e['duration'] for e in r.evals if e['start'] == s])
                               for s in STARTS] for r in runs])
         mean, half = band(per_seed)
-        ax.bar(np.arange(len(STARTS)) + k * width, mean, width, yerr=half, capsize=2,
-               label=label)
+        ax.bar(np.arange(len(STARTS)) + k * width, mean, width,
+               yerr=half if np.isfinite(half).all() else None, capsize=2,
+               label=f'{label} (n={len(runs)})')
     ax.set_xticks(np.arange(len(STARTS)) + width * (len(labels) - 1) / 2)
     ax.set_xticklabels(STARTS)
     ax.set_xlabel('start point')
     ax.set_ylabel('time to destination [s] (timeout = 60)')
     ax.legend(fontsize=8)
     ax.grid(axis='y', alpha=0.3)
-    ax.set_title('Fig. 5: time to the destination after learning (95% t-band over seeds)')
+    n = min(len(_runs(results, lb)) for lb in labels)
+    ax.set_title('Fig. 5: time to the destination after learning'
+                 + (' (95% t-band over seeds)' if n >= MIN_BAND_SEEDS else f'\n({band_note(n)})'))
     _save(fig, path)
 
 
@@ -268,6 +329,89 @@ def fig_diagnostics(results, path: Path) -> None:
         for ax in axes[:, col]:
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7)
+    _save(fig, path)
+
+
+def moving_window(n: int) -> int:
+    """Window of the moving average of a run of ``n`` episodes: about a tenth of the run,
+    at least 3 (or ``n``) and at most 50 (the paper's block)."""
+    return int(min(max(round(n / 10), min(3, n)), 50)) if n > 0 else 1
+
+
+def moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing mean over the last ``window`` values (fewer at the start), NaN-aware."""
+    values = np.asarray(values, float)
+    out = np.full(len(values), np.nan)
+    for k in range(len(values)):
+        chunk = values[max(0, k - window + 1):k + 1]
+        chunk = chunk[np.isfinite(chunk)]
+        if chunk.size:
+            out[k] = chunk.mean()
+    return out
+
+
+def _run_title(result, what: str, window: int) -> str:
+    label = result.spec.get('label', 'run')
+    n = len(result.episodes)
+    return f'{label}: {what}, {n} episodes (moving average over {window})'
+
+
+def run_curve(result, path: Path) -> None:
+    """The learning of one run (``clis run``'s ``curve.png``), for any length from a few
+    episodes: each episode's outcome (reached or not), its moving average
+    (:func:`moving_window`), and the success rate of each full block of ``result.block``
+    episodes at the block's last episode."""
+    reached = np.array([float(r.get('reached', np.nan)) for r in result.episodes])
+    n = len(reached)
+    x = np.arange(1, n + 1)
+    window = moving_window(n)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(x, reached, '|', color='tab:gray', ms=8, label='episode (1 = reached)')
+    ax.plot(x, moving_average(reached, window), '-', marker='.' if n < 30 else None,
+            color='tab:blue', lw=2, label=f'moving average ({window} episodes)')
+    n_blocks = n // result.block if result.block > 0 else 0
+    if n_blocks:
+        rate = np.array(result.success_curve()) / result.block
+        ax.plot(np.arange(1, n_blocks + 1) * result.block, rate, 's', color='tab:red', ms=7,
+                label=f'block of {result.block} episodes')
+    ax.set_xlim(0.5, n + 0.5)
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_xlabel('episode')
+    ax.set_ylabel('success (reached the destination)')
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc='upper left')
+    ax.set_title(_run_title(result, 'success', window), fontsize=10)
+    _save(fig, path)
+
+
+def run_selection(result, path: Path) -> None:
+    """Who acted in each episode of one run (``clis run``'s ``selection.png``): the share
+    of the episode's time each module's command was in force, its moving average
+    (:func:`moving_window`) and the mean of each full block of ``result.block`` episodes."""
+    n = len(result.episodes)
+    x = np.arange(1, n + 1)
+    window = moving_window(n)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    n_blocks = n // result.block if result.block > 0 else 0
+    for k, name in enumerate(result.modules):
+        colour = MODULE_COLOURS.get(name, f'C{k}')
+        share = np.array([float(r.get(f'share_{name}', np.nan)) for r in result.episodes])
+        ax.plot(x, share, '.', color=colour, alpha=0.35, ms=4)
+        ax.plot(x, moving_average(share, window), '-', marker='.' if n < 30 else None,
+                color=colour, lw=2, label=f'{name} (moving average over {window})')
+        if n_blocks:
+            ax.plot(np.arange(1, n_blocks + 1) * result.block,
+                    result.selection_shares()[:, k], 's', color=colour, mec='k', ms=7)
+    if n_blocks:
+        ax.plot([], [], 's', color='white', mec='k', label=f'block of {result.block} episodes')
+    ax.plot([], [], '.', color='gray', alpha=0.5, label='one episode')
+    ax.set_xlim(0.5, n + 0.5)
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_xlabel('episode')
+    ax.set_ylabel("share of the episode's time acting")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc='upper left', ncol=2)
+    ax.set_title(_run_title(result, 'who acted', window), fontsize=10)
     _save(fig, path)
 
 

@@ -221,9 +221,9 @@ def write_curve(out: Path, block: int) -> tuple[Path, Path] | None:
             w.writerow([(k + 1) * block, int(s), *[round(float(x), 4) for x in shares[k]]])
     os.replace(tmp, csv_path)
     png = out / 'curve.png'
-    figures.fig3a([result], png)
+    figures.run_curve(result, png)
     if len(names) > 1:
-        figures.fig3bc([result], out / 'selection.png')
+        figures.run_selection(result, out / 'selection.png')
     return csv_path, png
 
 
