@@ -84,7 +84,7 @@ def test_schema_is_the_full_ros2msg_definition():
     head, *deps = text.split('\n' + SEPARATOR + '\n')
     assert 'string[] name' in head and 'float64[] position' in head
     names = [d.splitlines()[0] for d in deps]
-    assert names == ['MSG: std_msgs/msg/Header', 'MSG: builtin_interfaces/msg/Time']
+    assert names == ['MSG: std_msgs/Header', 'MSG: builtin_interfaces/Time']
     assert 'int32 sec' in deps[1] and 'uint32 nanosec' in deps[1]
     with pytest.raises(BagError, match='no msg/Nope.msg'):
         message_definition('sensor_msgs/msg/Nope')

@@ -6,9 +6,11 @@ without metadata). The MCAP file is what rosbag2's (Jazzy) MCAP storage plugin w
 
 * header profile ``ros2``; message encoding ``cdr`` (the serialized bytes as they came off the
   wire, never decoded);
-* one schema per type, named ``pkg/msg/Type``, encoding ``ros2msg``: the type's ``.msg`` text
-  followed by every dependency, each after a line of 80 ``=`` and ``MSG: pkg/msg/Type``
-  (:func:`message_definition`, from the ``share/<pkg>/msg/`` folders of the ament prefixes);
+* one schema per type, named ``pkg/msg/Type``, encoding ``ros2msg``, byte for byte what
+  rosbag2_cpp's ``LocalMessageDefinitionSource`` writes: the type's ``.msg`` text followed by
+  every dependency, each after a line of 80 ``=`` and ``MSG: pkg/Type`` spelled as the
+  ``.msg`` file references it (:func:`message_definition`, from the ``share/<pkg>/msg/``
+  folders of the ament prefixes; :func:`definition` for the ``.idl`` fallback);
 * channel metadata ``offered_qos_profiles`` (a YAML list of QoS maps, :func:`qos_yaml`) and
   ``topic_type_hash`` (``RIHS01_...``);
 * chunks (zstd), message indexes, statistics and the summary (the ``mcap`` writer's
@@ -38,16 +40,25 @@ from typing import Any
 import yaml
 
 __all__ = ['BagError', 'BagWriter', 'BagReader', 'BagMessage', 'TopicInfo', 'BagInfo',
-           'METADATA_VERSION', 'bag_topics', 'message_definition', 'type_hash', 'qos_yaml',
-           'parse_qos_yaml', 'bag_info', 'format_info', 'mcap_path']
+           'METADATA_VERSION', 'bag_topics', 'definition', 'message_definition', 'type_hash',
+           'qos_yaml', 'parse_qos_yaml', 'bag_info', 'format_info', 'mcap_path']
 
 #: ``rosbag2_bagfile_information.version`` written (rosbag2 in Jazzy).
 METADATA_VERSION = 9
 SEPARATOR = '=' * 80
-PRIMITIVES = frozenset({'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16',
-                        'uint16', 'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring'})
-# a field's type at the start of a line: "pkg/Type[] name", "float64[3] x", "string<=5 s"
-_FIELD_TYPE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:<=\d+)?(?:\[[^\]]*\])?\s+')
+#: The field types rosbag2 (Jazzy) does not look up as definitions (``wstring`` is not one).
+ROSBAG2_PRIMITIVES = frozenset({'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8',
+                                'int16', 'uint16', 'int32', 'uint32', 'int64', 'uint64',
+                                'string'})
+#: rosbag2_cpp's ``ROSBAG2_CPP_LOCAL_MESSAGE_DEFINITION_SOURCE_MAX_RECURSION_DEPTH``.
+MAX_RECURSION_DEPTH = 50
+# rosbag2_cpp's regexes (local_message_definition_source.cpp, Jazzy), on the raw bytes:
+# a type name "foo_msgs/Bar" or "foo_msgs/msg/Bar"
+_PACKAGE_TYPENAME = re.compile(r'([a-zA-Z0-9_]+)/(?:msg/|srv/)?([a-zA-Z0-9_]+)', re.ASCII)
+# a .msg field's type at the start of a line ("foo_msgs/Bar" in "foo_msgs/Bar[] bar")
+_MSG_FIELD_TYPE = re.compile(rb'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
+# an .idl dependency ("foo_msgs/msg/Bar" in #include <foo_msgs/msg/Bar.idl>)
+_IDL_FIELD_TYPE = re.compile(rb'(?:^|\n)#include\s+(?:"|<)([a-zA-Z0-9_/]+)\.idl(?:"|>)')
 #: rmw's "infinite" duration, as rosbag2 writes it (sec, nsec).
 INFINITE = (9223372036, 854775807)
 
@@ -95,44 +106,148 @@ def _find_interface(msg_type: str, ext: str, shares: list[Path]) -> Path:
                    'source env.sh')
 
 
-def message_definition(msg_type: str,
-                       prefixes: Sequence[str | os.PathLike] | None = None) -> str:
-    """The ``ros2msg`` schema text of ``msg_type`` (``pkg/msg/Type``) with its dependencies.
+class _DefinitionNotFoundError(BagError):
+    """rosbag2's ``DefinitionNotFoundError``: no such package or definition file."""
 
-    The type's ``.msg`` text, then every type it uses (depth first, each once, in sorted order
-    at each level as rosbag2 does), each after a line of 80 ``=`` and ``MSG: pkg/msg/Type``.
+
+class _TypenameNotUnderstoodError(BagError):
+    """rosbag2's ``TypenameNotUnderstoodError``: a name that is not ``pkg/[msg/]Type``."""
+
+
+def _package_share(pkg: str, shares: list[Path]) -> Path:
+    """``ament_index_cpp::get_package_share_directory``: the first prefix whose ament index
+    lists ``pkg`` (else, for a prefix without an index, the first with ``share/pkg``)."""
+    for share in shares:
+        if (share / 'ament_index' / 'resource_index' / 'packages' / pkg).is_file():
+            return share / pkg
+    for share in shares:
+        if (share / pkg).is_dir():
+            return share / pkg
+    raise _DefinitionNotFoundError(f'package {pkg}: not in the ament index of any prefix of '
+                    f'AMENT_PREFIX_PATH ({", ".join(map(str, shares)) or "empty"}): '
+                    'source env.sh')
+
+
+def _delimiter(name: str, fmt: str) -> bytes:
+    return f'{SEPARATOR}\n{fmt.upper()}: {name}\n'.encode()
+
+
+class _DefinitionSource:
+    """rosbag2_cpp's ``LocalMessageDefinitionSource`` (Jazzy), for message types.
+
+    A definition is found by its name as written (``pkg/Type`` or ``pkg/msg/Type``) in
+    ``share/pkg/msg/Type.msg`` (or ``.idl``); its text is kept as bytes, untouched. Its
+    dependencies are the field types that rosbag2's regex matches in that raw text (comments
+    included): a type without a package takes the package of the file (``Vector3`` in a
+    geometry_msgs file is ``geometry_msgs/Vector3``), ``pkg/Type`` is kept as written; they
+    are visited in byte order.
+    """
+
+    def __init__(self, shares: list[Path]) -> None:
+        self.shares = shares
+        self.specs: dict[tuple[str, str], tuple[bytes, list[str]]] = {}
+
+    def load(self, name: str, fmt: str) -> tuple[bytes, list[str]]:
+        """``load_message_spec``: the text and the sorted dependencies of ``name``."""
+        key = (name, fmt)
+        if key not in self.specs:
+            match = _PACKAGE_TYPENAME.fullmatch(name)
+            if match is None:
+                raise _TypenameNotUnderstoodError(f'type {name!r}: not understood (pkg/msg/Type)')
+            pkg, short = match.group(1), match.group(2)
+            path = _package_share(pkg, self.shares) / 'msg' / f'{short}.{fmt}'
+            if not path.is_file():
+                raise _DefinitionNotFoundError(f'type {name}: no msg/{short}.{fmt} in '
+                                               f'{path.parent.parent}')
+            text = path.read_bytes()
+            if fmt == 'msg':
+                deps = set()
+                for found in _MSG_FIELD_TYPE.findall(text):
+                    dep = found.decode()
+                    if dep not in ROSBAG2_PRIMITIVES:
+                        deps.add(dep if '/' in dep else f'{pkg}/{dep}')
+            else:
+                deps = {found.decode() for found in _IDL_FIELD_TYPE.findall(text)}
+            self.specs[key] = (text, sorted(deps, key=str.encode))
+        return self.specs[key]
+
+    def full_text(self, root: str, fmt: str, seen: set[tuple[str, str]]) -> bytes:
+        """``append_recursive``: the text, then each dependency not seen yet, depth first."""
+        def append(name: str, depth: int) -> bytes:
+            if depth <= 0:
+                raise BagError(f'type {root}: reached max recursion depth resolving its '
+                               'definition')
+            text, deps = self.load(name, fmt)
+            out = [text]
+            for dep in deps:
+                if (dep, fmt) not in seen:
+                    seen.add((dep, fmt))
+                    out += [b'\n', _delimiter(dep, fmt), append(dep, depth - 1)]
+            return b''.join(out)
+        return append(root, MAX_RECURSION_DEPTH)
+
+
+def definition(msg_type: str, prefixes: Sequence[str | os.PathLike] | None = None
+               ) -> tuple[str, bytes]:
+    """``(encoding, schema data)`` of ``msg_type`` exactly as rosbag2 (Jazzy) records it.
+
+    rosbag2_cpp's ``LocalMessageDefinitionSource::get_full_text``: the ``.msg`` definition
+    with its dependencies (``ros2msg``, :func:`message_definition`); when a ``.msg`` file is
+    missing, the ``.idl`` ones (``ros2idl``: ``IDL: pkg/msg/Type`` first, then each
+    ``#include``d dependency after a line of 80 ``=`` and ``IDL: pkg/msg/Dep``); a name it
+    does not understand, or no definition at all, gives ``('unknown', b'')``, as rosbag2's
+    writer records it (``empty_message_definition_for``).
 
     Parameters
     ----------
+    msg_type : str
+        ``pkg/msg/Type`` (or ``pkg/Type``).
+    prefixes : sequence of path, optional
+        Install prefixes (default ``$AMENT_PREFIX_PATH``).
+    """
+    if '/srv/' in msg_type:             # a service event topic: rosbag2 finds no .srv of it
+        return 'unknown', b''
+    source = _DefinitionSource(_share_dirs(prefixes))
+    seen: set[tuple[str, str]] = set()
+    try:
+        return 'ros2msg', source.full_text(msg_type, 'msg', seen)
+    except _TypenameNotUnderstoodError:
+        return 'unknown', b''
+    except _DefinitionNotFoundError:
+        pass
+    try:
+        return 'ros2idl', _delimiter(msg_type, 'idl') + source.full_text(msg_type, 'idl', seen)
+    except (_TypenameNotUnderstoodError, _DefinitionNotFoundError):
+        return 'unknown', b''
+
+
+def message_definition(msg_type: str,
+                       prefixes: Sequence[str | os.PathLike] | None = None) -> str:
+    """The ``ros2msg`` schema text of ``msg_type`` with its dependencies, as rosbag2 writes it.
+
+    The type's ``.msg`` text as installed, then every type it uses (depth first, each once,
+    in byte order at each level), each after a line of 80 ``=`` and ``MSG: `` with the name
+    as the ``.msg`` file spells it: ``std_msgs/Header`` for a field ``std_msgs/Header header``,
+    ``geometry_msgs/Vector3`` for a field ``Vector3 linear`` of a geometry_msgs type
+    (rosbag2_cpp's ``LocalMessageDefinitionSource::get_full_text``, Jazzy). Foxglove finds a
+    dependency only under that spelling (docs/bags.md).
+
+    Parameters
+    ----------
+    msg_type : str
+        ``pkg/msg/Type`` (or ``pkg/Type``).
     prefixes : sequence of path, optional
         Install prefixes whose ``share/<pkg>/msg/`` hold the ``.msg`` files (default
         ``$AMENT_PREFIX_PATH``).
+
+    Raises
+    ------
+    BagError
+        A ``.msg`` file (of the type or of a dependency) is not installed, or the name is not
+        ``pkg/msg/Type``.
     """
-    shares = _share_dirs(prefixes)
-    seen: set[str] = set()
-
-    def full(name: str, depth: int) -> str:
-        if depth <= 0:
-            raise BagError(f'type {msg_type}: dependencies nested too deep')
-        pkg, ns, short = _split_type(name)
-        text = _find_interface(name, '.msg', shares).read_text()
-        deps = set()
-        for found in _FIELD_TYPE.findall(_strip_comments(text)):
-            if found in PRIMITIVES:
-                continue
-            dep_pkg, _, dep = found.rpartition('/')
-            deps.add(f'{dep_pkg or pkg}/msg/{dep}')
-        for dep in sorted(deps):
-            if dep not in seen:
-                seen.add(dep)
-                text += f'\n{SEPARATOR}\nMSG: {dep}\n' + full(dep, depth - 1)
-        return text
-
-    return full('/'.join(_split_type(msg_type)), 50)
-
-
-def _strip_comments(text: str) -> str:
-    return '\n'.join(line.split('#', 1)[0] for line in text.splitlines())
+    source = _DefinitionSource(_share_dirs(prefixes))
+    return source.full_text(msg_type, 'msg', set()).decode()
 
 
 def type_hash(msg_type: str, prefixes: Sequence[str | os.PathLike] | None = None) -> str:
@@ -273,18 +388,18 @@ class BagWriter:
     def add_topic(self, topic: str, msg_type: str,
                   qos_profiles: Sequence[Mapping[str, Any]] = (), hash_: str = '') -> None:
         """Register ``topic`` (once) with its type, offered QoS and type hash (default: from
-        the type's description). A type whose ``.msg`` is not installed is recorded with an
-        empty schema of encoding ``unknown``, as rosbag2 does."""
+        the type's description). The schema is :func:`definition`'s: a type whose ``.msg``
+        is not installed is recorded with its ``.idl`` definitions, or with an empty schema of
+        encoding ``unknown``, as rosbag2 does."""
         if topic in self._channels:
             return
         msg_type = '/'.join(_split_type(msg_type))
         if msg_type not in self._schemas:
             try:
-                encoding, text = 'ros2msg', message_definition(msg_type, self.prefixes)
+                encoding, data = definition(msg_type, self.prefixes)
             except (BagError, OSError):          # as rosbag2: recorded, definition unknown
-                encoding, text = 'unknown', ''
-            self._schemas[msg_type] = self._writer.register_schema(
-                msg_type, encoding, text.encode())
+                encoding, data = 'unknown', b''
+            self._schemas[msg_type] = self._writer.register_schema(msg_type, encoding, data)
         if not hash_:
             try:
                 hash_ = type_hash(msg_type, self.prefixes)
