@@ -1,8 +1,9 @@
 """The CLIS node graph on real rclpy + Fast DDS: `clis run` as a user starts it.
 
 One short Async run is observed by a probe node (graph API, every stream): nodes, topics and
-types match the README's tables; each module proposes exactly at its period under sim time;
-lockstep answers every instant. A second run has a module and then the learner killed.
+types match the topic tables of docs/robot.md and docs/graph.md; each module proposes exactly
+at its period under sim time; lockstep answers every instant. A second run has a module and
+then the learner killed.
 The arbiter's choice frequencies against (3): test_graph_arbiter.py.
 """
 
@@ -67,9 +68,10 @@ def told(failure: AssertionError, proc: subprocess.Popen, out: Path) -> Assertio
                                      *tails]))
 
 
-def readme_tables(repo: Path) -> dict[str, str]:
-    """``{topic: pkg/msg/Type}`` of the README's robot-interface and graph topic tables."""
-    text = (repo / 'README.md').read_text()
+def topic_tables(repo: Path) -> dict[str, str]:
+    """``{topic: pkg/msg/Type}`` of the topic tables of docs/robot.md (the robot interface) and
+    docs/graph.md (the graph's own topics)."""
+    text = '\n'.join((repo / 'docs' / name).read_text() for name in ('robot.md', 'graph.md'))
     topics = {}
     for line in text.splitlines():
         cells = [c.strip() for c in line.strip().strip('|').split('|')]
@@ -205,10 +207,10 @@ def test_a_rerun_with_the_same_seed_is_bit_identical(async_run, tmp_path):
 def test_nodes_topics_and_types_match_the_readme(async_run, repo):
     graph = async_run['graph']
     assert {'sim', 'innate', 'view', 'place', 'arbiter', 'learner'} <= graph['nodes']
-    documented = readme_tables(repo)
+    documented = topic_tables(repo)
     topics = {k: v[0] for k, v in graph['topics'].items()
               if k not in ('/rosout', '/parameter_events')}
-    assert set(topics) - set(documented) == set(), 'topics missing from the README tables'
+    assert set(topics) - set(documented) == set(), 'topics missing from the tables of docs/'
     for topic, msg_type in documented.items():
         if topic == '/reset':                                   # a service
             continue
