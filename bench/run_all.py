@@ -55,9 +55,15 @@ def render(results: dict, kept: list[str] | None = None, kept_note: str = '') ->
              '| benchmark | measure | value | goal |', '|---|---|---|---|']
     for name, res in results['benchmarks'].items():
         for row in res.get('rows', []):
-            lines.append(f'| {name} | {row["measure"]} | {row["value"]} | '
-                         f'{row.get("goal", "")} |')
+            cells = [name, row['measure'], row['value'], row.get('goal', '')]
+            lines.append('| ' + ' | '.join(md_cell(c) for c in cells) + ' |')
     return '\n'.join(lines + (kept or []))
+
+
+def md_cell(value: object) -> str:
+    """``value`` as one Markdown table cell: a ``|`` in it (``a | b`` in a measure or value)
+    is escaped so that it does not end the cell."""
+    return re.sub(r'(?<!\\)\|', r'\\|', str(value)).replace('\n', ' ')
 
 
 def _old_rows(text: str, skip: set[str]) -> tuple[list[str], dict[str, str]]:
