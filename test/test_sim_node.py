@@ -23,7 +23,7 @@ SPEED = 10.0  # sim seconds per wall second in these tests
 TICK = 0.05   # config/sim.yaml episode.dt
 TOPICS = {'ir': LaserScan, 'camera': JointState, 'wheels': JointState, 'reward': Vector3Stamped,
           'odom': Odometry, 'markers': MarkerArray}
-# declared rates (Hz of sim time), as in the README's topic table
+# declared rates (Hz of sim time), as in the topic table of docs/robot.md
 RATES = {'/clock': 1 / TICK, 'ir': 1 / TICK, 'camera': 1 / TICK, 'wheels': 1 / TICK,
          'reward': 1 / TICK, 'odom': 1 / TICK, 'markers': 10.0}
 

@@ -49,7 +49,7 @@ from clis_learner.ros_env import RECORDER_PROFILE_NAME, use_profile
 __all__ = ['RecorderParams', 'RecorderNode', 'GRAPH_TOPICS', 'LATCHED_TOPICS', 'qos_to_dict',
            'qos_from_dict', 'message_class', 'main']
 
-#: Topics of the graph (relative names; README topic tables) and their types.
+#: Topics of the graph and their types (relative names; docs/graph.md, docs/robot.md).
 GRAPH_TOPICS = {
     '/clock': 'rosgraph_msgs/msg/Clock',
     'ir': 'sensor_msgs/msg/LaserScan',

@@ -4,7 +4,7 @@ meet ROS types (the robot interface itself is :mod:`cr_sim.conversions`).
 Standard messages only (custom interfaces cannot be built from the ROS 2 wheels). A record with
 a time stamp, a few named scalars and one or two float vectors is a ``sensor_msgs/JointState``
 whose ``name[k]`` names ``position[k]``; ``header.frame_id`` names the module. The layouts
-(README, topic table):
+(docs/graph.md, topic table):
 
 =====================  ===========================================================================
 topic                  sensor_msgs/JointState layout

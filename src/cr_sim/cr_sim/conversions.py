@@ -1,6 +1,6 @@
 """Message conversions of the robot interface: the one place where core values meet ROS types.
 
-The simulator node and the real-robot bridge publish the same interface (README, topic table):
+The simulator node and the real-robot bridge publish the same interface (docs/robot.md#topics):
 
 ============  =================================  ==================================================
 topic         type                               content

@@ -1,7 +1,7 @@
 """The robot interface's ROS endpoints, created once for every node that is the robot.
 
 The simulator node and the real robot's bridge (cr_bridge) publish the same topics with the
-same types and QoS and take the same inputs (README, topic table): this is the one place where
+same types and QoS and take the same inputs (docs/robot.md#topics): this is the one place where
 they are declared.
 """
 

@@ -52,5 +52,5 @@ def print_help_and_exit_if_asked(doc: str | None, args: list[str] | None = None)
         print(f'usage: {sys.argv[0]} [--ros-args -p KEY:=VALUE ... --params-file FILE]\n')
         print((doc or '').strip())
         print('\nParameters: every key of the config file, dotted '
-              '(e.g. -p node.speed_factor:=10.0).\nSee the README for the topic table.')
+              '(e.g. -p node.speed_factor:=10.0).\nThe topic table: docs/robot.md.')
         raise SystemExit(0)
