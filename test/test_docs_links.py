@@ -44,8 +44,10 @@ def tracked(repo: Path) -> list[Path]:
                              check=True).stdout.decode()
         names = [n for n in out.split('\0') if n]
     except (OSError, subprocess.CalledProcessError):
+        skip = {'build', 'install', 'log', 'results', 'bags', 'node_modules', '__pycache__'}
         names = [str(p.relative_to(repo)) for p in repo.rglob('*')
-                 if p.is_file() and '.git' not in p.parts]
+                 if p.is_file() and not any(part.startswith('.') or part in skip
+                                            for part in p.relative_to(repo).parts[:-1])]
     return [repo / n for n in names if (repo / n).is_file()]
 
 
