@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Callable
+import functools
+import re
+import shutil
 import subprocess
 import sys
 import time
@@ -33,6 +36,55 @@ def stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
             proc.kill()
     out, _ = proc.communicate()
     return out or ''
+
+
+# A network namespace of the processes under test only (``unshare -rn``: no privileges): the
+# loopback, and one veth interface x0 with a default route and the multicast route, so that
+# anything these processes send off the loopback leaves through x0 and is counted there. Other
+# traffic of the host is not in the count. IPv6 is off in it (the kernel's own router
+# solicitations and MLD reports would count otherwise).
+NETNS_SCRIPT = r"""
+set -e
+ip link set lo up
+ip link add x0 type veth peer name x1
+echo 1 > /proc/sys/net/ipv6/conf/all/disable_ipv6
+echo 1 > /proc/sys/net/ipv6/conf/default/disable_ipv6
+ip addr add 10.199.0.2/24 dev x0
+ip link set x1 up
+ip link set x0 up
+ip route add default via 10.199.0.1 dev x0
+ip route add 224.0.0.0/4 dev x0
+set +e
+tx() { awk '$1 == "x0:" {print $11}' /proc/net/dev; }
+before=$(tx)
+"$@"
+rc=$?
+echo "NETNS_TX_PACKETS $(( $(tx) - before ))"
+exit $rc
+"""
+
+
+@functools.cache
+def netns_available() -> bool:
+    """Whether this host lets an unprivileged user make a network namespace with a veth."""
+    if not (shutil.which('unshare') and shutil.which('ip')):
+        return False
+    out = subprocess.run(['unshare', '-rn', 'sh', '-c', NETNS_SCRIPT, 'netns', 'true'],
+                         capture_output=True, text=True)
+    return out.returncode == 0 and 'NETNS_TX_PACKETS' in out.stdout
+
+
+def in_netns(argv: list[str]) -> list[str]:
+    """``argv`` run in a network namespace of its own (NETNS_SCRIPT); its output ends with
+    the packets its processes sent off the loopback (:func:`netns_tx_packets`)."""
+    return ['unshare', '-rn', 'sh', '-c', NETNS_SCRIPT, 'netns', *argv]
+
+
+def netns_tx_packets(output: str) -> int:
+    """The packets sent off the loopback, from the output of an :func:`in_netns` command."""
+    found = re.findall(r'^NETNS_TX_PACKETS (-?\d+)$', output, re.MULTILINE)
+    assert found, f'no packet count in the output:\n{output[-2000:]}'
+    return int(found[-1])
 
 
 def assert_rate(stamps: list[float], rate: float, topic: str, rel: float = 0.15,
@@ -83,6 +135,10 @@ class Probe:
             if done():
                 return True
         return False
+
+    def spin_once(self, timeout: float = 0.02) -> None:
+        """Serve what arrived (waiting at most ``timeout`` s for it)."""
+        self.executor.spin_once(timeout_sec=timeout)
 
     def spin_for(self, seconds: float) -> None:
         self.spin_until(lambda: False, seconds)

@@ -12,6 +12,7 @@ import xml.etree.ElementTree as ET
 from clis_learner.doctor import exchange
 from clis_learner.ros_env import PROFILE_VAR, apply_ros_env
 import pytest
+from ros_util import in_netns, netns_available, netns_tx_packets
 
 PACKAGES = ('clis_modules', 'clis_learner', 'cr_bridge', 'cr_sim')
 
@@ -92,34 +93,29 @@ def test_two_processes_exchange_messages_over_fast_dds():
     assert 'received 10' in out
 
 
-def tx_packets() -> dict[str, int]:
-    """Transmit packet counters of every non-loopback network interface."""
-    counters = {}
-    for iface in Path('/sys/class/net').iterdir():
-        if iface.name == 'lo':
-            continue
-        stat = iface / 'statistics' / 'tx_packets'
-        if stat.is_file():
-            counters[iface.name] = int(stat.read_text())
-    return counters
-
-
 @pytest.mark.ros
-@pytest.mark.skipif(not Path('/sys/class/net').is_dir(), reason='needs Linux sysfs')
-def test_default_dds_sends_nothing_off_loopback():
-    # Another process on the machine may transmit now and then; an exchange window with zero
-    # transmitted packets on every non-loopback interface is what proves the point.
-    deltas = []
-    for _ in range(3):
-        before = tx_packets()
-        ok, out, _ = exchange(timeout=20, want=40)
-        after = tx_packets()
-        assert ok, out
-        delta = {k: after[k] - before[k] for k in before}
-        deltas.append(delta)
-        if not any(delta.values()):
-            return
-    pytest.fail(f'non-loopback interfaces transmitted during every DDS exchange: {deltas}')
+@pytest.mark.skipif(not netns_available(), reason='needs unshare -rn (user network namespaces)')
+@pytest.mark.parametrize('network', [False, True])
+def test_default_dds_sends_nothing_off_loopback(network):
+    """A talker and a listener in a network namespace of their own, where the only way off
+    the loopback is one counted interface: the default (loopback) profile sends nothing
+    through it, whatever else the host sends; ``network=True`` (no profile) does, which shows
+    the count sees DDS traffic."""
+    code = ('from clis_learner.doctor import exchange\n'
+            'from clis_learner.ros_env import apply_ros_env\n'
+            f'apply_ros_env(network={network})\n'
+            'ok, out, _ = exchange(timeout=30, want=20)\n'
+            'print(out)\n'
+            'raise SystemExit(0 if ok else 1)\n')
+    out = subprocess.run(in_netns([sys.executable, '-c', code]), capture_output=True,
+                         text=True, timeout=180)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert 'received 20' in out.stdout, out.stdout
+    sent = netns_tx_packets(out.stdout)
+    if network:
+        assert sent > 0, 'DDS without the profile sends discovery off the loopback'
+    else:
+        assert sent == 0, f'{sent} packets off the loopback with the default profile'
 
 
 @pytest.mark.ros
