@@ -254,11 +254,15 @@ def test_experiment_preset_and_ablation_flags(tmp_path, capsys):
 # ------------------------------------------------------------------------------ paper preset
 
 #: SHA-256 of the episode rows of the runs below, made with the code before issue 9 (commit
-#: 7597987): the paper preset must give bit-identical results with every new option at its
-#: paper value. The last bits of a run depend on the CPU's vector instructions (numpy's and
-#: numba's exp, log and reductions differ between AVX-512 and AVX2), so there is one digest
-#: per instruction set, each made by running 7597987's code on such a machine (an Intel Xeon
-#: with AVX-512; an AMD EPYC with AVX2 only, 2026-12-02).
+#: 7597987): the project's rules of before the paper preset was made literal (the step of (9)
+#: on the dimensionless W, the behaviour's density at its held state) must still give
+#: bit-identical results as the named options ``policy_step = dimensionless`` and
+#: ``behaviour_state = held``, with every other option at its paper value (the diagnostics
+#: added since, ``grow_share`` and ``c_max``, left out). The last bits of a run depend on the
+#: CPU's vector instructions (numpy's and numba's exp, log and reductions differ between
+#: AVX-512 and AVX2), so there is one digest per instruction set, each made by running
+#: 7597987's code on such a machine (an Intel Xeon with AVX-512; an AMD EPYC with AVX2 only,
+#: 2026-12-02).
 PAPER_GOLDEN = {
     'avx512f': {'sync': 'adf83328dc9de397b9c2e7a23ab5f4df842abf3cdec602b7a3d756adf608d938',
                 'async': 'c0218b1175ef6e55c004e9ac277d61031ed6cadef24636151bbe967cfa33cfdd'},
@@ -277,19 +281,40 @@ def _instruction_set() -> str:
     return 'avx512f' if 'avx512f' in flags else 'no avx512f'
 
 
+#: The options that give the rules of before the literal paper preset.
+BEFORE_LITERAL = {'learner.policy_step': 'dimensionless', 'learner.behaviour_state': 'held'}
+
+
 @pytest.mark.parametrize('condition', ['async', 'sync'])
-def test_paper_preset_is_bit_identical_to_before_issue_9(tmp_path, condition):
+def test_rules_before_the_literal_preset_are_bit_identical_as_options(tmp_path, condition):
     import hashlib
 
-    spec = JobSpec(index=0, label=condition, condition=condition, overrides={},
+    spec = JobSpec(index=0, label=condition, condition=condition, overrides=BEFORE_LITERAL,
                    sim_overrides={'episode.time_limit': 20.0}, seed=3, episodes=10,
                    eval_episodes=0, arena=None, run_dir=str(tmp_path), block=5,
                    train_start='starts')
-    rows = run_job(spec).episodes
+    rows = [{k: v for k, v in row.items()
+             if not k.startswith(('grow_share_', 'c_max_'))} for row in run_job(spec).episodes]
     digest = hashlib.sha256(json.dumps(rows, sort_keys=True).encode()).hexdigest()
     assert digest == PAPER_GOLDEN[_instruction_set()][condition], (
         f'not the digest of commit 7597987 on a CPU with {_instruction_set()}; on a new kind '
         "of CPU, run that commit's code on it to record its digest")
+
+
+def test_literal_paper_preset_differs_from_the_rules_before(tmp_path):
+    """The paper preset is not the old rules: its step of (9) is v_max^2 smaller and Async's
+    behaviour densities are scored at resampled states (both change the episodes)."""
+    rows = {}
+    for name, over in (('paper', {}), ('before', BEFORE_LITERAL)):
+        (tmp_path / name).mkdir()
+        spec = JobSpec(index=0, label='async', condition='async', overrides=over,
+                       sim_overrides={'episode.time_limit': 20.0}, seed=3, episodes=10,
+                       eval_episodes=0, arena=None, run_dir=str(tmp_path / name), block=5,
+                       train_start='starts')
+        rows[name] = run_job(spec).episodes
+    # the first episode is played with the initial parameters: identical until learning
+    assert rows['paper'][0]['duration'] == rows['before'][0]['duration']
+    assert rows['paper'] != rows['before']
 
 
 # ------------------------------------------------------------------------------ trust region

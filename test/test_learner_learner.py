@@ -277,14 +277,15 @@ def test_policy_gradient_learns_off_policy_by_importance_sampling(scaled):
 
 def test_policy_step_options_and_learned_sigma(scaled):
     params = scaled
-    raw = load_clis_params(overrides={'learner.policy_step': 'raw'})
+    raw = load_clis_params(overrides={'learner.policy_step': 'dimensionless'})
     mods_s = make_modules(params, 'view', LANDMARKS, 1.5)
     mods_r = copy.deepcopy(mods_s)
     mem = fake_episode(mods_s, 'view', seed=8)
     g_s = Learner(mods_s, params).learn(mem)['view']['grad_norm']
     g_r = Learner(mods_r, raw).learn(mem)['view']['grad_norm']
     v = mods_s[0]
-    # scaled = raw x sigma^2 / v_max^2 (inverse Fisher information of the mean)
+    # scaled = dimensionless x sigma^2 / v_max^2 (inverse Fisher information of the mean);
+    # the paper's step against finite differences: test_paper_rules.py
     assert g_s == pytest.approx(g_r * v.sigma ** 2 / v.v_max ** 2, rel=1e-12)
     learn_s = load_clis_params(overrides={'view.policy.learn_sigma': True,
                                           'view.policy.alpha_sigma': 10.0})

@@ -25,9 +25,9 @@ from cr_sim.core.params import (
     ros_parameters,
 )
 
-from clis_learner.core.corrections import BEHAVIOURS, CORRECTIONS
+from clis_learner.core.corrections import BEHAVIOUR_STATES, BEHAVIOURS, CORRECTIONS
 from clis_learner.core.resample import RESAMPLE_METHODS
-from clis_learner.core.updates import POLICY_UPDATES, STEP_NORMS, VALUE_UPDATES
+from clis_learner.core.updates import POLICY_STEPS, POLICY_UPDATES, STEP_NORMS, VALUE_UPDATES
 
 __all__ = ['LearnerParams', 'ClisParams', 'load_clis_params', 'params_hash', 'CLIS_NODE',
            'PRESET_NAMES', 'preset_overrides', 'preset_groups', 'PRESET_GROUPS']
@@ -44,9 +44,16 @@ class LearnerParams:
                           doc='actions onto each module grid: cubic spline or zero-order hold')
     correction: str = param(choices=tuple(CORRECTIONS), doc='importance-sampling correction')
     lambda_: float = param(0.0, 1.0, doc='trace decay lambda_i of TD(lambda) (8)')
-    policy_step: str = param(choices=('raw', 'scaled'),
-                             doc='(9) on the raw gradient, or scaled by the inverse Fisher '
-                                 'information of the Gaussian (10)')
+    policy_step: str = param(choices=POLICY_STEPS,
+                             doc="'paper' = (9) on the gradient of (10) with its mean in m/s; "
+                                 "'dimensionless' = on the gradient with respect to W in units "
+                                 "of v_max (v_max^2 times less); 'scaled' = times the inverse "
+                                 'Fisher information of the Gaussian (10)')
+    behaviour_state: str = param(choices=BEHAVIOUR_STATES,
+                                 doc="state at which the behaviour's density of (6)(7) is "
+                                     "scored: 'resampled' = its features at the target's "
+                                     "instant l tau_i (paper (6)); 'held' = at its latest "
+                                     'decision <= l tau_i')
     value_update: str = param(choices=VALUE_UPDATES,
                               doc="'paper' = TD(lambda) with the IS product (8); 'retrace' = "
                                   'per-decision truncated traces (Retrace / V-trace)')

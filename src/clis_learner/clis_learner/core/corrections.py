@@ -32,10 +32,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ['Correction', 'TruncatedRatio', 'ClippedRatio', 'NoCorrection', 'CORRECTIONS',
-           'make_correction', 'BEHAVIOURS', 'mixture_density']
+           'make_correction', 'BEHAVIOURS', 'BEHAVIOUR_STATES', 'mixture_density']
 
 #: ``learner.behaviour``: the density of the acting module (paper), or of the selection mixture.
 BEHAVIOURS = ('acting', 'mixture')
+#: ``learner.behaviour_state``: where the acting module's density is scored at a target's
+#: instant ``l tau_i``: its features at that instant (paper (6)) or at its latest decision.
+BEHAVIOUR_STATES = ('resampled', 'held')
 
 
 class Correction(Protocol):

@@ -7,8 +7,13 @@ module i (the *target*), whichever module acted (the *behaviour* i'):
 2. the executed actions resampled onto that grid, ``u_l`` (cubic spline or zero-order hold,
    :mod:`~clis_learner.core.resample`); rewards summed per interval ``[t_l, t_{l+1})``;
 3. the ratio (7) ``rho_l = (pi_i(x_l, u_l) + eps) / (pi_i'(x'_l, u_l) + eps)``, where ``i'`` is
-   the module whose command was in force at ``t_l`` and ``x'_l`` its state at its latest
-   decision ``<= t_l``; ``rho_l = 1`` exactly (no density evaluated) when ``i' = i``;
+   the module whose command was in force at ``t_l`` and ``x'_l`` its state at ``t_l``:
+   both densities at the same resampled data point ``(x(l tau_i), u(l tau_i))`` of (6)
+   (``learner.behaviour_state = resampled``, the paper; the behaviour's features at ``t_l``
+   come from its decision or its observation at that instant, :meth:`EpisodeMemory.states`),
+   or its state at its latest decision ``<= t_l`` (``held``, the project's rule before the
+   paper preset was made literal); ``rho_l = 1`` exactly (no density evaluated) when
+   ``i' = i``;
 4. TD(lambda) with IS (8) on ``w_i`` for every module (innate too);
 5. the policy gradient with IS (9) on ``W_i`` (and ``sigma_i`` if ``learn_sigma``) for the
    learned modules.
@@ -30,12 +35,12 @@ All densities of step 3 use the parameters the episode was played with: every ra
 before any module is updated, so the order of the modules does not matter. The result depends
 only on the memory and the parameters (no randomness).
 
-Policy step (``learner.policy_step``): ``raw`` applies (9) literally to the gradient of (10) in
-m/s, whose size grows as ``v_max / sigma^2``; ``scaled`` (default) multiplies the W gradient by
-``sigma^2 / v_max^2`` and the sigma gradient by ``sigma^2 / (2 d)``, the inverse Fisher
-information of the Gaussian (10) in its mean (per unit feature) and in sigma, so that alpha is a
-step in units of the speed limit whatever sigma and the period are (docs/design.md §9: the paper's
-alpha = 0.1 on the raw gradient was unstable).
+Policy step (``learner.policy_step``, :func:`~clis_learner.core.updates.policy_step_scale`):
+``paper`` (default) applies (9) to the gradient of (10) with its mean ``W_i b`` in m/s;
+``dimensionless`` to the gradient with respect to the stored ``W`` of ``mean = v_max W b``
+(v_max^2 times the paper's step); ``scaled`` multiplies the W gradient by ``sigma^2 / v_max^2``
+and the sigma gradient by ``sigma^2 / (2 d)``, the inverse Fisher information of the Gaussian
+(10) (beyond the paper: alpha is then a step in units of the speed limit).
 
 Diagnostics (one dict per module, all floats, see :data:`DIAGNOSTIC_KEYS`):
 
@@ -46,6 +51,9 @@ rho_mean        mean of rho_l
 c_final         c after the last step (importance product of the whole episode); with
                 retrace: the importance weight min(rho_bar, rho_l) of the last step's TD error
 c_min, c_median min and median of c_l over the steps (retrace: of the per-step weights)
+c_max           max of c_l over the steps (how far the product of (8) grew)
+grow_share      share of the steps with gamma_i rho_l > 1, where the trace of (8),
+                e <- lambda gamma_i rho e + c b, and the product c grow
 ess             (sum_l c_l)^2 / sum_l c_l^2, effective sample size of the steps' weights
 v_start         V_i(x_0) before the update
 ret             sum_l gamma_i^l r_l, the discounted return on module i's grid
@@ -64,7 +72,6 @@ import math
 
 from clis_modules.core.arbiter import selection_probs
 from clis_modules.core.modules import ModuleCore
-from clis_modules.core.policy import ACTION_DIM
 import numpy as np
 
 from clis_learner.core.config import ClisParams
@@ -76,6 +83,7 @@ from clis_learner.core.updates import (
     imitation_weights,
     offpac_weights,
     pg_weights,
+    policy_step_scale,
     step_sizes,
     td_lambda_is,
     td_retrace,
@@ -84,7 +92,8 @@ from clis_learner.core.updates import (
 __all__ = ['DIAGNOSTIC_KEYS', 'Replay', 'Learner']
 
 #: Keys of each module's diagnostics, in a stable order (CSV columns).
-DIAGNOSTIC_KEYS = ('n_steps', 'on_policy', 'rho_mean', 'c_final', 'c_min', 'c_median', 'ess',
+DIAGNOSTIC_KEYS = ('n_steps', 'on_policy', 'rho_mean', 'grow_share', 'c_final', 'c_min',
+                   'c_median', 'c_max', 'ess',
                    'v_start', 'ret', 'delta_abs_mean', 'grad_norm', 'sigma', 'diverged')
 
 
@@ -134,6 +143,11 @@ class Learner:
         self.arbiter = params.arbiter
         self.beta = params.common.beta
         self.correction = make_correction(self.params.correction, params.common.epsilon)
+        self.resampled = self.params.behaviour_state == 'resampled'
+        #: Off-policy steps whose behaviour density was scored at a held state (its latest
+        #: decision) since the learner was made: with ``behaviour_state = resampled``, the
+        #: steps of episodes without observations (the node graph's, for now).
+        self.held_steps = 0
 
     def learn(self, memory: EpisodeMemory, update: bool = True) -> dict[str, dict[str, float]]:
         """Replay one ended episode for every module; apply (8) and (9) unless ``update`` is
@@ -190,13 +204,13 @@ class Learner:
                 name = memory.module_names[j]
                 if name not in self.by_name:
                     raise KeyError(f"behaviour module {name!r} is not one of the learner's")
-                t_j, B_j = memory.decisions(name)  # noqa: N806
-                if B_j is None:
-                    raise ValueError(f'module {name!r} acted but never recorded a decision')
                 sel = beh[off] == j
-                k = latest_index(t_j, t_i[off][sel])        # its latest decision <= t_l
+                # (6) pi_i'(x(l tau_i), u(l tau_i)): the behaviour's state at the target's
+                # instant (resampled), or at its latest decision <= l tau_i (held)
+                B_j, exact = memory.states(name, t_i[off][sel], self.resampled)  # noqa: N806
+                self.held_steps += int(np.count_nonzero(~exact))
                 pi_behaviour[sel] = self.by_name[name].policy.density_batch(
-                    B_j[k], U[off][sel])
+                    B_j, U[off][sel])
             # (7) rho~ = (pi_i + eps) / (pi_i' + eps); rho = 1 exactly where i' = i
             rho[off] = self.correction.ratio(pi_target, pi_behaviour)
         return Replay(t_i, B, U, rho, r, on)
@@ -272,9 +286,10 @@ class Learner:
             if prm.step_norm != 'none':
                 g = g / np.maximum(np.einsum('ln,ln->l', rp.B, rp.B), MASS_MIN)
             d_w, d_sigma = m.policy.weighted_scores(rp.B, rp.U, g)
-            if self.params.policy_step == 'scaled':
-                d_w *= m.sigma ** 2 / m.v_max ** 2
-                d_sigma *= m.sigma ** 2 / (2 * ACTION_DIM)
+            # (9) on (10): the step in the units of learner.policy_step (updates module)
+            f_w, f_sigma = policy_step_scale(self.params.policy_step, m.v_max, m.sigma)
+            d_w *= f_w
+            d_sigma *= f_sigma
             if prm.max_mean_step > 0.0:
                 # trust region (cf. TRPO, Schulman et al. 2015): the episode's summed update may
                 # move the mean v_max W b at any of its states by at most max_mean_step sigma
@@ -304,9 +319,11 @@ class Learner:
             'n_steps': float(n_steps),
             'on_policy': float(np.mean(rp.on)),
             'rho_mean': float(np.mean(rp.rho)),
+            'grow_share': float(np.mean(m.gamma * rp.rho > 1.0)),
             'c_final': float(c[-1]),
             'c_min': float(c.min()),
             'c_median': float(np.median(c)),
+            'c_max': float(c.max()),
             'ess': ess,
             'v_start': v_start,
             'ret': float(np.sum(m.gamma ** np.arange(n_steps) * rp.r)),

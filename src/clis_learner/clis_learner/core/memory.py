@@ -7,6 +7,10 @@ What the learner needs to train every module from one episode, whichever module 
 * actions: the commands the robot executed, as a piecewise-constant sequence of change points
   ``(t, u, behaviour)``: at each decision of the acting (behaviour) module, its *proposed*
   action (before the arbiter's clip; the densities of (7) are of the proposal) and its name;
+* observations: a module's features at an instant that is not its own decision time but at
+  which it is the behaviour for another module's decision, so that the densities of (6) are
+  both scored at the same resampled state ``x(l tau_i)`` (``learner.behaviour_state =
+  resampled``); the headless runner records them, see :meth:`EpisodeMemory.states`;
 * rewards with their times;
 * the end time and whether the destination was reached.
 
@@ -55,6 +59,7 @@ class EpisodeMemory:
         """Forget everything (reuse the object for the next episode)."""
         self._dec_t: dict[str, list[float]] = {n: [] for n in self.module_names}
         self._dec_b: dict[str, list[np.ndarray]] = {n: [] for n in self.module_names}
+        self._obs: dict[str, list[tuple[float, np.ndarray]]] = {n: [] for n in self.module_names}
         self._act_t: list[float] = []
         self._act_u: list[np.ndarray] = []
         self._act_who: list[int] = []
@@ -93,6 +98,15 @@ class EpisodeMemory:
                 raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
             ts.append(t)
             bs.append(b)
+
+    def record_observation(self, module: str, t: float, b: ArrayLike) -> None:
+        """Module ``module``'s features ``b`` (copied), shape (n,), at time ``t`` [s], an
+        instant at which it did not decide (times of one module increase)."""
+        self._check_open()
+        obs = self._obs[module]
+        if obs and t <= obs[-1][0] + TIME_TOL:
+            raise ValueError(f'{module}: observation time {t} does not follow {obs[-1][0]}')
+        obs.append((float(t), np.array(b, dtype=np.float64).reshape(-1)))
 
     def record_action(self, t: float, u: ArrayLike, behaviour: str) -> None:
         """From time ``t`` [s] the robot executes ``u`` (the proposed ``(v_left, v_right)``
@@ -160,6 +174,37 @@ class EpisodeMemory:
             self._stacked[module] = out
         return out
 
+    def states(self, module: str, t: ArrayLike, resampled: bool = True
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """Features of ``module`` at the times ``t`` (M,), for its density in (6)(7).
+
+        With ``resampled``, from its decision or its observation at ``t_l`` itself (within
+        :data:`TIME_TOL`), the state ``x(l tau_i)`` of (6); where neither was recorded (a node
+        graph's episode: the module nodes publish decisions only) and always without
+        ``resampled``: at its latest decision ``<= t_l`` (a held state).
+
+        Returns
+        -------
+        B : np.ndarray, shape (M, n)
+        exact : np.ndarray of bool, shape (M,)
+            Whether row l is the module's state at ``t_l`` itself.
+        """
+        t = np.asarray(t, dtype=np.float64)
+        t_d, B_d = self.decisions(module)  # noqa: N806
+        if B_d is None:
+            raise ValueError(f'module {module!r} never recorded a decision')
+        end = math.inf if self.t_end is None else self.t_end - TIME_TOL
+        obs = [o for o in self._obs[module] if o[0] < end] if resampled else []
+        # decisions and observations merged in time order: row >= 0 a decision, < 0 -1 - obs
+        t_all = np.concatenate([t_d, [o[0] for o in obs]])
+        rows = np.concatenate([np.arange(len(t_d)), -1 - np.arange(len(obs))])
+        order = np.argsort(t_all, kind='stable')
+        t_all, rows = t_all[order], rows[order]
+        k = np.clip(np.searchsorted(t_all, t + TIME_TOL, side='right') - 1, 0, None)
+        exact = np.abs(t_all[k] - t) <= TIME_TOL
+        B = np.stack([B_d[r] if r >= 0 else obs[-1 - r][1] for r in rows[k]])  # noqa: N806
+        return B, exact
+
     def actions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Action change points: times (K,), proposed actions (K, 2), behaviour index (K,)
         (once the episode has ended: the same arrays at every call, do not modify them)."""
@@ -205,6 +250,7 @@ class StreamBuffer:
     def clear(self) -> None:
         """Forget everything."""
         self._dec: dict[str, list[tuple[float, np.ndarray]]] = {n: [] for n in self.module_names}
+        self._obs: dict[str, list[tuple[float, np.ndarray]]] = {n: [] for n in self.module_names}
         self._act: list[tuple[float, np.ndarray, str]] = []
         self._rew: list[tuple[float, float]] = []
 
@@ -223,6 +269,11 @@ class StreamBuffer:
                 return False
         _insert(items, (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
         return True
+
+    def add_observation(self, module: str, t: float, b: ArrayLike) -> None:
+        """Module ``module``'s features ``b`` (not copied) at ``t`` [s], an instant at which it
+        did not decide (:meth:`EpisodeMemory.record_observation`)."""
+        _insert(self._obs[module], (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
 
     def last_decision(self, module: str) -> float:
         """Stamp of the newest decision of ``module`` held [s] (-inf: none)."""
@@ -259,6 +310,8 @@ class StreamBuffer:
         lo, hi = t0 - TIME_TOL, t_end - TIME_TOL
         for name, items in self._dec.items():
             mem._take_decisions(name, _take(items, lo, hi))
+        for name, items in self._obs.items():
+            mem._obs[name] = _take(items, lo, hi)
         for t, u, who in _take(self._act, lo, hi):
             mem.record_action(t, u, who)
         for t, r in _take(self._rew, t0 + TIME_TOL, t_end + TIME_TOL):

@@ -122,6 +122,9 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     localizing = [d for d in deciders if d.localizes]
     selector.begin_episode(0.0)
     u_exec = np.zeros(2)
+    # the acting module's features at the other modules' instants (learner.behaviour_state)
+    observe = (agent.params.learner.behaviour_state == 'resampled'
+               and agent.params.learner.behaviour == 'acting' and len(deciders) > 1)
     k = 0
     while True:
         due = schedule[k % cycle]
@@ -137,6 +140,10 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
                 u_exec = cmd.u_exec
                 if cmd.module >= 0:
                     buffer.add_action(cmd.t, cmd.u, names[cmd.module])
+            acting = deciders[selector.acting] if observe and selector.acting >= 0 else None
+            if acting is not None and acting not in due:
+                # (6): the behaviour's state at this decision instant of another module
+                buffer.add_observation(acting.name, t, acting.observe(percept))
         # the command held until the next decision, or up to a reward or the episode's end
         res, wheels = sim.hold(u_exec, gaps[k % cycle])
         k += res.steps

@@ -34,7 +34,8 @@ from cr_sim.core.kernels import njit
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['C_MAX', 'gamma_i', 'importance_products', 'td_lambda_is', 'pg_weights',
+__all__ = ['POLICY_STEPS', 'policy_step_scale', 'C_MAX', 'gamma_i', 'importance_products',
+           'td_lambda_is', 'pg_weights',
            'policy_gradient_is', 'VALUE_UPDATES', 'POLICY_UPDATES', 'STEP_NORMS',
            'step_sizes', 'td_retrace', 'vtrace_targets', 'offpac_weights',
            'discounted_returns', 'imitation_weights', 'bounded_step']
@@ -43,6 +44,9 @@ __all__ = ['C_MAX', 'gamma_i', 'importance_products', 'td_lambda_is', 'pg_weight
 VALUE_UPDATES = ('paper', 'retrace')
 POLICY_UPDATES = ('paper', 'offpac')
 STEP_NORMS = ('none', 'features', 'bounded')
+#: ``learner.policy_step``: how the score of (10) is turned into the step of (9), see
+#: :func:`policy_step_scale`.
+POLICY_STEPS = ('paper', 'dimensionless', 'scaled')
 #: Smallest feature mass ``b . b`` a normalised step divides by (a state with no feature on).
 MASS_MIN = 1e-3
 
@@ -427,3 +431,29 @@ def imitation_weights(v: ArrayLike, r: ArrayLike, gamma_i: float, kappa: float) 
     """
     # self-imitation: kappa max(0, G_l - V(x_l))
     return kappa * np.maximum(discounted_returns(r, gamma_i) - np.asarray(v, np.float64), 0.0)
+
+
+def policy_step_scale(policy_step: str, v_max: float, sigma: float) -> tuple[float, float]:
+    """Factors of the W and sigma scores of (10) (``GaussianPolicy.weighted_scores``, taken
+    with respect to the dimensionless ``W`` of ``mean = v_max W b``) for the step of (9).
+
+    ``paper``: (9) applied to (10) as printed, whose mean ``W_i b`` is in m/s. With
+    ``W_i = v_max W``, ``W_i <- W_i + alpha g`` with ``g = d ln pi / d W_i = (u - mu) b^T /
+    sigma^2`` is ``W <- W + alpha g / v_max``, and the score of ``W`` is ``v_max g``: the
+    factor is ``1 / v_max^2``. ``dimensionless``: the gradient with respect to ``W`` itself
+    (factor 1; v_max^2 times the paper's step: 11x for view, 64x for place). ``scaled``:
+    ``sigma^2 / v_max^2`` on W and ``sigma^2 / (2 d)`` on sigma, the inverse Fisher information
+    of the Gaussian (10) (beyond the paper). Sigma is in m/s in every case.
+
+    Returns
+    -------
+    (float, float)
+        Factors of the W score and of the sigma score.
+    """
+    if policy_step == 'paper':
+        return 1.0 / v_max ** 2, 1.0
+    if policy_step == 'dimensionless':
+        return 1.0, 1.0
+    if policy_step == 'scaled':
+        return sigma ** 2 / v_max ** 2, sigma ** 2 / 4.0      # 2 d with d = 2 wheels
+    raise ValueError(f'learner.policy_step: {policy_step!r} is not one of {POLICY_STEPS}')

@@ -175,6 +175,19 @@ class Decider:
         return Proposal(m.name, float(percept.t), b, u, mean, float(sigma), value,
                         self.version)
 
+    def observe(self, percept: Percept) -> np.ndarray:
+        """Features ``b_i(x(t))`` at ``percept.t``, an instant at which the module does not
+        decide, without deciding: no draw, and its state is left as it is (the place module's
+        belief is the one its next motion and landmark updates would give at ``t``,
+        :meth:`MarkovLocalizer.peek`). The learner scores the module's density there when it
+        is the behaviour of another module's decision (paper (6): both densities at
+        ``x(l tau_i)``)."""
+        m = self.module
+        loc = m.localizer
+        if loc is None:
+            return m.features(percept.dest_bearing, percept.d_o, percept.landmark_bearings)
+        return loc.peek(None if self._first else self._odo, percept.landmark_bearings)
+
     def warm_up(self, n_landmarks: int) -> None:
         """Run a copy of this decider through every path of an episode once, so that the
         compiled kernels it calls (numba, compiled lazily at their first call, or loaded from

@@ -279,6 +279,20 @@ class MarkovLocalizer:
         else:
             self._p = self._uniform.copy()
 
+    def peek(self, odometry: tuple[float, float, float] | None,
+             landmark_bearings: ArrayLike) -> np.ndarray:
+        """The belief that :meth:`predict` (``odometry = (dx, dy, dtheta)``, skipped if None)
+        then :meth:`update` would give, as a new flat array (N,); the belief itself is left
+        as it is (the motion and sensor updates replace it by a new array, never write it)."""
+        saved = self._p
+        try:
+            if odometry is not None:
+                self.predict(*odometry)
+            self.update(landmark_bearings)
+            return self._p.reshape(-1).copy()
+        finally:
+            self._p = saved
+
     def predict_wheels(self, wheels: ArrayLike, dt: float, wheel_base: float) -> None:
         """Motion update from the executed wheel velocities of consecutive simulator steps.
 
