@@ -195,7 +195,7 @@ class GraphNode(Node):
         self.graph: GraphParams = build(GraphParams, values.pop('graph'), where='graph')
         self.cfg = (build(section_cls, values.pop(section), where=section)
                     if section is not None else None)
-        self.clis = build(clis_cls, values, where='clis')
+        self.clis = build(clis_cls, values)
         self._clock_sub = None                   # /clock taken on demand (clock_on_demand)
 
     def arena(self) -> Arena:

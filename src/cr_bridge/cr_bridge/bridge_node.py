@@ -93,15 +93,11 @@ class BridgeNode(Node):
         defaults = ros_parameters(config_dir() / 'bridge.yaml', 'bridge')
         sim = ros_parameters(config_dir() / 'sim.yaml', 'sim')
         defaults.update({k: v for k, v in sim.items() if k not in IGNORED_SECTIONS})
-        values = declare_from_config(self, defaults)
-        try:
-            self.cfg = build(BridgeNodeParams, values.pop('node'), where='bridge.node')
-            contact = build(ContactParams, values.pop('contact'), where='bridge.contact')
-            self.params = build(SimParams, values, where='sim')
-            self.arena = load_arena(self.cfg.arena_file or None)
-        except ConfigError as exc:
-            self.get_logger().fatal(str(exc))
-            raise
+        values = declare_from_config(self, defaults)     # errors name the ROS key (main)
+        self.cfg = build(BridgeNodeParams, values.pop('node'), where='node')
+        contact = build(ContactParams, values.pop('contact'), where='contact')
+        self.params = build(SimParams, values)
+        self.arena = load_arena(self.cfg.arena_file or None)
         robot, sensors = self.params.robot, self.params.sensors
         self.wheel_base = robot.wheel_base
         self.ir_angles = np.deg2rad(sensors.ir_angles_deg)

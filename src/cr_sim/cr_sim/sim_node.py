@@ -95,14 +95,10 @@ class SimNode(Node):
     def __init__(self) -> None:
         super().__init__('sim')
         defaults = ros_parameters(config_dir() / 'sim.yaml', 'sim')
-        values = declare_from_config(self, defaults)
-        try:
-            self.cfg = build(SimNodeParams, values.pop('node'), where='sim.node')
-            self.params = build(SimParams, values, where='sim')
-            self.arena = load_arena(self.cfg.arena_file or None)
-        except ConfigError as exc:
-            self.get_logger().fatal(str(exc))
-            raise
+        values = declare_from_config(self, defaults)     # errors name the ROS key (main)
+        self.cfg = build(SimNodeParams, values.pop('node'), where='node')
+        self.params = build(SimParams, values)
+        self.arena = load_arena(self.cfg.arena_file or None)
         # the same generators as the headless runner's for a seed (clis_learner.core.runner)
         self.sim = Simulator(self.arena, self.params, np.random.default_rng([self.cfg.seed, 0]))
         self.start_rng = np.random.default_rng([self.cfg.seed, 1])
