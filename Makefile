@@ -38,7 +38,7 @@ VARIANTS ?= $(subst $(space),,$(strip $(VARIANT_LIST)))
 help:
 	@sed -n '2,6p' Makefile | sed 's/^# *//'
 
-setup: $(VENV)/.stamp install/.stamp
+setup: $(VENV)/.stamp install/.stamp test/foxglove_reader/.stamp
 
 $(VENV)/.stamp: requirements.txt requirements-py.txt
 ifeq ($(SYSTEM_ROS),1)
@@ -60,6 +60,15 @@ install/.stamp: $(VENV)/.stamp $(SOURCES)
 	  --event-handlers console_cohesion- summary- >log/colcon-build.txt 2>&1 \
 	  || { mkdir -p log; cat log/colcon-build.txt; exit 1; }
 	@touch $@
+
+# The Foxglove app's MCAP reader for test/test_bag_readers.py (npm, pinned by package-lock.json);
+# without npm (or the registry), setup goes on and that test fails saying why.
+FOX := test/foxglove_reader
+$(FOX)/.stamp: $(FOX)/package.json $(FOX)/package-lock.json
+	@if command -v npm >/dev/null 2>&1; then echo "setup: npm ci ($(FOX))"; \
+	  (cd $(FOX) && npm ci --no-audit --no-fund --loglevel=error) && touch $@ \
+	  || echo "setup: npm ci failed: test/test_bag_readers.py will fail"; \
+	else echo "setup: no npm: test/test_bag_readers.py needs Node.js 18+"; fi
 
 # The main job on the simulator: check the ROS setup, then the CLIS node graph (simulator,
 # innate/view/place modules, arbiter, learner as processes) learning live in the Async

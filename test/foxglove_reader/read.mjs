@@ -5,7 +5,9 @@
 //
 // usage: node read.mjs FILE.mcap
 // stdout: one JSON object {schemas: {name: "ok" | error}, topics: {topic: {type, count,
-//   decoded}}, errors: [...]}; exit 0 when every schema parsed and every message decoded.
+//   decoded, stamps}}, errors: [...]}, stamps being the decoded header.stamp (or clock) of each
+//   message that has one, in ns as decimal strings; exit 0 when every schema parsed and every
+//   message decoded.
 import { open } from "node:fs/promises";
 
 import { parse } from "@foxglove/rosmsg";
@@ -61,7 +63,7 @@ for (const [id, schema] of reader.schemasById) {
 }
 for (const channel of reader.channelsById.values()) {
   const schema = reader.schemasById.get(channel.schemaId);
-  out.topics[channel.topic] = { type: schema?.name ?? "", count: 0, decoded: 0 };
+  out.topics[channel.topic] = { type: schema?.name ?? "", count: 0, decoded: 0, stamps: [] };
 }
 for await (const message of reader.readMessages({ validateCrcs: true })) {
   const channel = reader.channelsById.get(message.channelId);
@@ -77,6 +79,10 @@ for await (const message of reader.readMessages({ validateCrcs: true })) {
       throw new Error("decoded to nothing");
     }
     entry.decoded += 1;
+    const stamp = value.header?.stamp ?? value.clock;
+    if (stamp !== undefined) {
+      entry.stamps.push(String(BigInt(stamp.sec) * 1000000000n + BigInt(stamp.nanosec)));
+    }
   } catch (err) {
     if (out.errors.length < 20) {
       out.errors.push(`${channel.topic} #${message.sequence}: ${err.message ?? err}`);
