@@ -15,13 +15,14 @@ from clis_modules.core.arbiter import selection_probs
 from clis_modules.core.decider import Proposal
 from clis_modules.core.modules import condition_periods, load_module_params, module_gamma
 from clis_modules.graph_node import proposal_qos
-from cr_sim.conversions import from_time
+from cr_sim.conversions import from_time, to_time
 from cr_sim.core.params import config_dir, ros_parameters
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from ros_util import Probe
+from rosgraph_msgs.msg import Clock
 from scipy import stats
 from sensor_msgs.msg import JointState
 
@@ -39,7 +40,9 @@ def stamp(msg) -> float:
 
 
 def test_arbiter_choice_frequencies_match_eq3(tmp_path):
-    """A standalone arbiter node (wall time, a draw at every proposal) against (3)."""
+    """A standalone arbiter node (a draw at every proposal) against (3). Its clock is sim time
+    the test publishes: a proposal is never stale however long the machine stalls (a 0.375 s
+    stall made one stale in wall time), since the clock stands until the test moves it."""
     beta = 60.0
     values = {'innate': 0.2, 'view': 0.5, 'place': 0.3}
     params = load_module_params()
@@ -47,7 +50,8 @@ def test_arbiter_choice_frequencies_match_eq3(tmp_path):
     expected = selection_probs([values[m] for m in MODULES], gammas, beta)
     assert expected.max() - expected.min() > 0.2          # the test can tell them apart
     arb = subprocess.Popen([sys.executable, '-m', 'clis_modules.arbiter_node', '--ros-args',
-                            '-p', 'use_sim_time:=false', '-p', 'arbiter.selection:=decision',
+                            '-p', 'use_sim_time:=true', '-p', 'arbiter_node.lockstep:=false',
+                            '-p', 'arbiter.selection:=decision',
                             '-p', f'common.beta:={beta}', '-p', 'graph.condition:=async'],
                            stdout=(tmp_path / 'arbiter.log').open('w'), stderr=subprocess.STDOUT)
     probe = Probe('arbiter_probe')
@@ -56,36 +60,48 @@ def test_arbiter_choice_frequencies_match_eq3(tmp_path):
         qos = proposal_qos(GRAPH['liveliness_lease'], depth=1000)   # what the arbiter asks
         pubs = {m: probe.node.create_publisher(JointState, f'{m}/proposal', qos)
                 for m in MODULES}
+        clock = probe.node.create_publisher(Clock, '/clock', 10)
         episode = probe.node.create_publisher(
             DiagnosticArray, 'episode',
             QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()),
-                                60)
-        now = probe.node.get_clock().now().nanoseconds * 1e-9
-        msg = DiagnosticArray(status=[DiagnosticStatus(message='start', name='episode',
-                                                       values=[KeyValue(key='episode',
-                                                                        value='1')])])
-        msg.header.stamp = probe.node.get_clock().now().to_msg()
-        episode.publish(msg)
-        probe.spin_for(0.5)
-        rounds = 400
-        draws = probe.msgs['arbiter/selection']
-        # a draw per proposal, but the first round's: the episode's first draw waits for every
-        # module's first proposal
-        per_round = [1] + [len(MODULES)] * (rounds - 1)
-        for new in per_round:
-            # closed loop: the next round once this one is drawn, so that no proposal reaches
-            # the arbiter stale (older than its staleness limit: dropped, no draw), however
-            # loaded the machine
-            t = probe.node.get_clock().now().nanoseconds * 1e-9
-            before = len(draws)
+        assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values())
+                                and clock.get_subscription_count(), 60)
+        now = 1.0                                   # sim time [s]; 10 ms per round
+
+        def tick(t: float) -> None:
+            clock.publish(Clock(clock=to_time(t)))
+
+        def propose(t: float) -> None:
+            tick(t)
             for m in MODULES:
                 p = Proposal(m, t, np.zeros(3), np.zeros(2), np.zeros(2), 0.1, values[m], 0)
                 pubs[m].publish(mconv.proposal_msg(p, t))
-            probe.spin_until(lambda n=before + new: len(draws) >= n, 2.0)
-        assert probe.spin_until(lambda: len(draws) >= sum(per_round), 10), (
+        tick(now)
+        msg = DiagnosticArray(status=[DiagnosticStatus(message='start', name='episode',
+                                                       values=[KeyValue(key='episode',
+                                                                        value='1')])])
+        msg.header.stamp = to_time(now)
+        episode.publish(msg)
+        draws = probe.msgs['arbiter/selection']
+        # the episode's first draw waits for every module's first proposal; the start event
+        # travels on its own topic: propose again until the first draw arrives
+        t = now
+        for _ in range(200):
+            t += 0.01
+            propose(t)
+            if probe.spin_until(lambda: draws, 1.0):
+                break
+        assert draws, (tmp_path / 'arbiter.log').read_text()[-3000:]
+        rounds = 400
+        for _ in range(rounds - 1):
+            # closed loop: the next round once this one is drawn (a draw per proposal)
+            t += 0.01
+            n = len(draws) + len(MODULES)
+            propose(t)
+            probe.spin_until(lambda n=n: len(draws) >= n, 5.0)
+        want = 1 + len(MODULES) * (rounds - 1)
+        assert probe.spin_until(lambda: len(draws) >= want, 60), (
             len(draws), (tmp_path / 'arbiter.log').read_text()[-3000:])
-        probe.spin_for(1.0)
         draws = [m for m in probe.msgs['arbiter/selection'] if stamp(m) > now]
         full = [m for m in draws if np.all(np.array(m.position) > 0)]
         for m in full[:20]:
