@@ -85,8 +85,13 @@ def test_coroutine_callbacks_and_tasks_finish_across_waits(ctx):
     timer.cancel()
     gate.set_result(True)
     assert spin_until(ex, lambda: done)
-    assert ex.create_task(lambda: 7) is not None
-    assert spin_until(ex, lambda: not ex._tasks)
+
+
+def test_a_created_task_runs_to_its_result(ctx):
+    _, ex = make(ctx)
+    task = ex.create_task(lambda: 7)
+    assert spin_until(ex, lambda: task.done() and not ex._tasks)
+    assert not task.cancelled() and task.result() == 7
 
 
 def test_an_on_demand_group_is_waited_on_only_while_active(ctx):
@@ -132,17 +137,23 @@ def test_qos_events_reach_their_callback(ctx):
 def test_a_callback_error_is_raised_and_a_destroyed_entity_is_skipped(ctx):
     node, ex = make(ctx)
     pub = node.create_publisher(Int64, 'lean_err', 10)
-    subs = []
+    subs, calls, other = [], [], []
 
     def destroy_self(m):
+        calls.append(m.data)
         node.destroy_subscription(subs[0])
 
     subs.append(node.create_subscription(Int64, 'lean_err', destroy_self, 10))
     assert spin_until(ex, lambda: pub.get_subscription_count() == 1)
     pub.publish(Int64(data=1))
-    assert spin_until(ex, lambda: not list(node.subscriptions))
+    assert spin_until(ex, lambda: subs[0] not in list(node.subscriptions))
+    assert calls == [1]
+    # another reader of the topic gets the next message; the destroyed one is not called
+    node.create_subscription(Int64, 'lean_err', lambda m: other.append(m.data), 10)
+    assert spin_until(ex, lambda: pub.get_subscription_count() == 1)
     pub.publish(Int64(data=2))
-    ex.spin_once(timeout_sec=0.05)            # nothing waits on the destroyed one
+    assert spin_until(ex, lambda: other == [2]), other
+    assert calls == [1], 'a destroyed subscription was called'
 
     def fail():
         raise RuntimeError('callback failed')
