@@ -11,6 +11,7 @@ from clis_modules.core.modules import (
     innate_target_mean,
     make_modules,
     module_gamma,
+    place_projection,
     speed_limit,
 )
 from clis_modules.core.policy import GaussianPolicy, log_density
@@ -232,6 +233,44 @@ def test_view_and_place_features(params):
     assert place.localizer.belief.sum() == pytest.approx(1.0)
     place.reset()
     assert np.ptp(place.localizer.belief) == 0.0
+
+
+def test_place_rbf_features_project_the_belief_and_generalise_to_neighbouring_cells():
+    """place.features.kind = rbf: b = P belief with P's columns normalised; a belief on one
+    cell shares features with the neighbouring cell (what is learned carries over), which
+    the per-cell belief features never do."""
+    rbf = load_clis_params(overrides={'place.features.kind': 'rbf'})
+    place = make_modules(rbf, 'place', LANDMARKS, 1.5)[0]
+    fp = rbf.place.features
+    assert place.n == fp.n_xy ** 2 * fp.n_theta
+    loc = place.localizer
+
+    def at_cell(x, y, theta):
+        one = np.zeros(loc.shape)
+        one[loc.cell_of(x, y, theta)] = 1.0
+        loc.set_belief(one)
+        return place.features(0.0, 0.1, None)
+
+    a, b = at_cell(0.5, 0.5, 0.3), at_cell(0.65, 0.5, 0.3)
+    far = at_cell(-1.0, -1.0, 0.3)
+    assert a.sum() == pytest.approx(1.0) and b.sum() == pytest.approx(1.0)
+    assert a @ b > 0.5 * (a @ a)                  # neighbours: mostly the same RBFs
+    assert a @ far < 0.05 * (a @ a)               # 2 m apart: little in common
+    P = place_projection(loc, fp).toarray()  # noqa: N806
+    np.testing.assert_allclose(P.sum(axis=0), 1.0)
+    loc.reset()
+    np.testing.assert_allclose(place.features(0.0, 0.1, None), P @ loc.belief)
+    cells = load_clis_params()                     # the paper: one feature per cell
+    grid = make_modules(cells, 'place', LANDMARKS, 1.5)[0]
+    loc = grid.localizer
+    one = np.zeros(loc.shape)
+    one[loc.cell_of(0.5, 0.5, 0.3)] = 1.0
+    loc.set_belief(one)
+    ga = grid.features(0.0, 0.1, None)
+    one[:] = 0.0
+    one[loc.cell_of(0.65, 0.5, 0.3)] = 1.0
+    loc.set_belief(one)
+    assert ga @ grid.features(0.0, 0.1, None) == 0.0
 
 
 def test_module_parameter_setters_validate(params):

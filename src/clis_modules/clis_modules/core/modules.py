@@ -48,6 +48,7 @@ from typing import Any, Protocol
 from cr_sim.core.params import dataclass, load_params, param
 import numpy as np
 from numpy.typing import ArrayLike
+import scipy.sparse
 
 from clis_modules.core.arbiter import ArbiterParams
 from clis_modules.core.features import RbfGrid, uniform_centers
@@ -57,13 +58,16 @@ from clis_modules.core.value import LinearValue, gamma_i
 
 __all__ = [
     'CONDITIONS', 'MODULE_NAMES', 'CommonParams', 'ValueParams', 'PolicyParams', 'InnateParams',
-    'ViewParams', 'PlaceParams', 'ModuleSetParams', 'load_module_params', 'ModuleCore',
+    'ViewParams', 'PlaceParams', 'PlaceFeatureParams', 'PLACE_FEATURES', 'place_projection',
+    'ModuleSetParams', 'load_module_params', 'ModuleCore',
     'speed_limit', 'module_gamma', 'condition_periods', 'innate_target_mean', 'make_innate',
     'make_view', 'make_place', 'make_modules', 'make_module', 'arena_map',
 ]
 
 #: Module names, in the canonical order (index = module id in memories and diagnostics).
 MODULE_NAMES = ('innate', 'view', 'place')
+#: ``place.features.kind``: the belief itself, or projected onto RBFs over the pose.
+PLACE_FEATURES = ('belief', 'rbf')
 #: Experimental conditions of the paper (Sec. IV).
 CONDITIONS = ('innate', 'view', 'place', 'sync', 'async')
 
@@ -140,11 +144,28 @@ class ViewParams:
 
 
 @dataclass(frozen=True)
+class PlaceFeatureParams:
+    """What the place module's linear value (1) and policy (10) read of its belief (section
+    ``place.features``; the paper is silent beyond "b_pl,j(x) denotes the robot's belief")."""
+
+    kind: str = param(choices=PLACE_FEATURES,
+                      doc="'belief' = the belief over the grid cells itself (paper III-D); "
+                          "'rbf' = the belief projected onto Gaussian RBFs over (x, y, theta), "
+                          'b_k = sum_cells belief(cell) phi_k(cell), which generalise across '
+                          'neighbouring cells (our choice)')
+    n_xy: int = param(1, 100, doc="RBF centres per axis of the floor ('rbf')")
+    n_theta: int = param(1, 100, doc="RBF centres over the heading ('rbf')")
+    phi_xy: float = param(1e-6, 100.0, doc="RBF width over x and y [m^2] ('rbf')")
+    phi_theta: float = param(1e-6, 100.0, doc="RBF width over the heading [rad^2] ('rbf')")
+
+
+@dataclass(frozen=True)
 class PlaceParams:
     """The place-based module M_pl (section ``place``, paper III-D)."""
 
     period: float = param(0.01, 60.0, doc='decision period tau_pl [s]')
     localization: LocalizationParams = param(doc='section place.localization')
+    features: PlaceFeatureParams = param(doc='section place.features')
     value: ValueParams = param(doc='section place.value')
     policy: PolicyParams = param(doc='section place.policy')
 
@@ -403,15 +424,51 @@ def make_view(prm: ViewParams, common: CommonParams, period: float | None = None
 def make_place(prm: PlaceParams, common: CommonParams, landmarks_xy: ArrayLike,
                half_size: float, boxes: ArrayLike | None = None,
                period: float | None = None) -> ModuleCore:
-    """The place-based module M_pl (paper III-D) with its own Markov localizer."""
+    """The place-based module M_pl (paper III-D) with its own Markov localizer.
+
+    Its features are the belief ``b_pl`` itself (``place.features.kind = belief``, one per grid
+    cell), or ``P b_pl`` (``rbf``): the belief-weighted mean of normalised Gaussian RBFs over
+    the cells' poses ``(x, y, theta)``, ``P[k, c] = phi_k(pose_c)`` with ``sum_k P[k, c] = 1``,
+    so a localised belief activates the RBFs around its cell and what is learned at one cell
+    carries to its neighbours.
+    """
     tau = prm.period if period is None else period
     v_max = speed_limit(common, tau)
     loc = MarkovLocalizer(prm.localization, landmarks_xy, half_size, boxes)
+    fp = prm.features
+    if fp.kind == 'rbf':
+        P = place_projection(loc, fp)  # noqa: N806 - (n_rbf, cells)
+
+        def feature_fn(dest: float, d_o: float, lm: Any) -> np.ndarray:
+            return P @ loc.belief
+        n = P.shape[0]
+    else:
+        def feature_fn(dest: float, d_o: float, lm: Any) -> np.ndarray:
+            return loc.belief.copy()
+        n = loc.size
     return ModuleCore(
-        'place', tau, module_gamma(common, tau), v_max, loc.size,
-        lambda dest, d_o, lm: loc.belief.copy(),
-        GaussianPolicy(np.zeros((2, loc.size)), prm.policy.sigma, v_max),
-        LinearValue(loc.size, prm.value.v_init), prm.value, prm.policy, localizer=loc)
+        'place', tau, module_gamma(common, tau), v_max, n, feature_fn,
+        GaussianPolicy(np.zeros((2, n)), prm.policy.sigma, v_max),
+        LinearValue(n, prm.value.v_init), prm.value, prm.policy, localizer=loc)
+
+
+def place_projection(loc: MarkovLocalizer, fp: PlaceFeatureParams) -> scipy.sparse.csr_matrix:
+    """``P`` of :func:`make_place`'s ``rbf`` features, shape (n_xy^2 n_theta, cells): column
+    ``c`` the normalised RBFs at the centre pose of cell ``c`` (the belief's flat order,
+    ``(heading, x, y)``)."""
+    x0, x1 = loc.xs[0] - 0.5 * loc.cell, loc.xs[-1] + 0.5 * loc.cell
+    y0, y1 = loc.ys[0] - 0.5 * loc.cell, loc.ys[-1] + 0.5 * loc.cell
+    # centres in the middles of n equal bins of each axis (as for a periodic input)
+    grid = RbfGrid([x0 + (x1 - x0) * (np.arange(fp.n_xy) + 0.5) / fp.n_xy,
+                    y0 + (y1 - y0) * (np.arange(fp.n_xy) + 0.5) / fp.n_xy,
+                    uniform_centers(-math.pi, math.pi, fp.n_theta, True)],
+                   [fp.phi_xy, fp.phi_xy, fp.phi_theta], [False, False, True], normalize=True)
+    th, gx, gy = np.meshgrid(loc.thetas, loc.xs, loc.ys, indexing='ij')
+    poses = np.stack([gx.ravel(), gy.ravel(), th.ravel()], axis=1)    # flat order of belief
+    P = grid.batch(poses)[:, :-1].T  # noqa: N806
+    # sparse: activations below 1e-4 of a cell's mass dropped, each column renormalised to 1
+    P[P < 1e-4] = 0.0
+    return scipy.sparse.csr_matrix(P / P.sum(axis=0, keepdims=True))
 
 
 def arena_map(arena: Any) -> tuple[np.ndarray, float, np.ndarray]:
