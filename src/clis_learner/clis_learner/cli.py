@@ -29,14 +29,25 @@ examples:
 """
 
 
+class HelpFormatter(argparse.RawDescriptionHelpFormatter,
+                    argparse.ArgumentDefaultsHelpFormatter):
+    """Descriptions and epilogs as written, and every option's default in its help (not for
+    flags, required options and ``None`` defaults, whose help says what they mean)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        if action.required or action.default in (None, False, []):
+            return action.help or ''
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='clis', description='CLIS with asynchronous modules on ROS 2 (Uchibe & Doya).',
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG, formatter_class=HelpFormatter)
     parser.add_argument('--network', action='store_true',
-                        help='allow DDS traffic on all interfaces (default: loopback only)')
+                        help='allow DDS traffic on all interfaces (off: loopback only)')
     parser.add_argument('--domain-id', type=int, metavar='N',
-                        help='ROS_DOMAIN_ID to use (default: $ROS_DOMAIN_ID or a random 1-100)')
+                        help='ROS_DOMAIN_ID to use (None: $ROS_DOMAIN_ID or a random 1-100)')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
     sub.required = True
     sub.add_parser('doctor', help='print the ROS/DDS setup and check two processes talk')
@@ -58,10 +69,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         parser.error(f'--domain-id {args.domain_id} is out of range [0, 232]')
     apply_ros_env(network=args.network, domain_id=args.domain_id)
-    if args.command == 'doctor':
-        from clis_learner.doctor import run_doctor
-        return run_doctor()
-    return int(args.func(args) or 0)
+    try:
+        if args.command == 'doctor':
+            from clis_learner.doctor import run_doctor
+            return run_doctor()
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        # Ctrl-C: one line and the shell's code for SIGINT, for every subcommand (what was
+        # written is complete: results are written atomically; `--resume` continues)
+        print(f'\nclis {args.command}: interrupted', file=sys.stderr)
+        return 130
 
 
 if __name__ == '__main__':

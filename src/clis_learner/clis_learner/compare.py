@@ -16,6 +16,7 @@ import argparse
 from collections import defaultdict
 import csv
 from pathlib import Path
+import sys
 
 import numpy as np
 from scipy import stats
@@ -62,7 +63,8 @@ def compare(a: dict[str, np.ndarray], b: dict[str, np.ndarray], block: int
         rows.append({'from': k * block + 1, 'to': (k + 1) * block, 'a': ma[k], 'a_half': ha[k],
                      'b': mb[k], 'b_half': hb[k],
                      'overlap': float(max(ma[k] - ha[k], mb[k] - hb[k])
-                                      <= min(ma[k] + ha[k], mb[k] + hb[k])),
+                                      <= min(ma[k] + ha[k], mb[k] + hb[k]))
+                     if np.isfinite([ha[k], hb[k]]).all() else float('nan'),
                      'p': float(p)})
     return rows
 
@@ -71,10 +73,15 @@ def table(rows: list[dict[str, float]], a_name: str, b_name: str, n_a: int, n_b:
     out = [f'| episodes | {a_name} ({n_a} runs) | {b_name} ({n_b} runs) | 95% bands overlap '
            "| Welch's p |", '|---|---|---|---|---|']
     for r in rows:
-        out.append(f'| {r["from"]}-{r["to"]} | {r["a"]:.2f} ± {r["a_half"]:.2f} | '
-                   f'{r["b"]:.2f} ± {r["b_half"]:.2f} | {"yes" if r["overlap"] else "NO"} | '
-                   f'{r["p"]:.2f} |')
+        overlap = ('n/a (fewer than 3 runs)' if not np.isfinite(r['overlap'])
+                   else 'yes' if r['overlap'] else 'NO')
+        out.append(f'| {r["from"]}-{r["to"]} | {_pm(r["a"], r["a_half"])} | '
+                   f'{_pm(r["b"], r["b_half"])} | {overlap} | {r["p"]:.2f} |')
     return '\n'.join(out)
+
+
+def _pm(mean: float, half: float) -> str:
+    return f'{mean:.2f} ± {half:.2f}' if np.isfinite(half) else f'{mean:.2f}'
 
 
 def plot(rows: list[dict[str, float]], a_name: str, b_name: str, title: str,
@@ -86,7 +93,8 @@ def plot(rows: list[dict[str, float]], a_name: str, b_name: str, title: str,
         m = np.array([r[key] for r in rows])
         h = np.array([r[f'{key}_half'] for r in rows])
         ax.plot(x, m, 'o-', color=colour, label=name)
-        ax.fill_between(x, m - h, m + h, color=colour, alpha=0.2)
+        if np.isfinite(h).all():
+            ax.fill_between(x, m - h, m + h, color=colour, alpha=0.2)
     ax.set_xlabel('episode')
     ax.set_ylabel('fraction reached (per block)')
     ax.set_ylim(-0.05, 1.05)
@@ -95,14 +103,32 @@ def plot(rows: list[dict[str, float]], a_name: str, b_name: str, title: str,
     _save(fig, path)
 
 
+def _error(message: str) -> int:
+    print(f'clis compare: {message}', file=sys.stderr)
+    return 2
+
+
 def _main(args: argparse.Namespace) -> int:
-    a = load_curves(args.a, args.condition)
-    b = load_curves(args.b, args.condition)
+    if args.block < 1:
+        return _error(f'--block must be >= 1 (got {args.block})')
+    for flag, folders in (('--a', args.a), ('--b', args.b)):
+        for folder in folders:
+            if not (folder / 'episodes.csv' if folder.is_dir() else folder).is_file():
+                return _error(f'{flag} {folder}: no episodes.csv there')
+    if args.png is not None and not args.png.parent.is_dir():
+        return _error(f'--png {args.png}: no folder {args.png.parent}')
+    try:
+        a = load_curves(args.a, args.condition)
+        b = load_curves(args.b, args.condition)
+    except (KeyError, ValueError, UnicodeDecodeError) as exc:
+        return _error(f'cannot read the episodes ({type(exc).__name__}: {exc})')
     if not a or not b:
-        print(f'clis compare: no learning episodes of condition {args.condition!r} in '
-              f'{"--a" if not a else "--b"}')
-        return 2
-    rows = compare(a, b, args.block)
+        return _error(f'no learning episodes of condition {args.condition!r} in '
+                      f'{"--a" if not a else "--b"}')
+    try:
+        rows = compare(a, b, args.block)
+    except ValueError as exc:
+        return _error(f'--block {args.block}: {exc}')
     print(f'{args.condition}: fraction of episodes that reached the destination, mean ± 95% '
           f'half-width over runs')
     print(table(rows, args.a_name, args.b_name, len(a), len(b)))
@@ -113,13 +139,13 @@ def _main(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from clis_learner.cli import HelpFormatter
     p = sub.add_parser('compare', help='compare two sets of runs block by block (95%% bands)',
-                       description=__doc__,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__, formatter_class=HelpFormatter)
     p.add_argument('--a', type=Path, nargs='+', required=True, help='folders of set A')
     p.add_argument('--b', type=Path, nargs='+', required=True, help='folders of set B')
     p.add_argument('--condition', required=True, help='condition to compare (async, view...)')
-    p.add_argument('--block', type=int, default=50, help='episodes per block (default 50)')
+    p.add_argument('--block', type=int, default=50, help='episodes per block')
     p.add_argument('--a-name', default='graph', help='name of set A in the table')
     p.add_argument('--b-name', default='headless', help='name of set B in the table')
     p.add_argument('--png', type=Path, help='also draw both bands into this PNG')

@@ -22,15 +22,18 @@ import csv
 from dataclasses import dataclass
 import json
 import multiprocessing as mp
+from multiprocessing.managers import SyncManager
 import os
 from pathlib import Path
 import queue
+import signal
 import sys
 import time
 from typing import Any
 
 import numpy as np
 
+from clis_learner.cli import HelpFormatter
 from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job, warm_up
 
 #: Where the runs execute (``--backend``).
@@ -83,51 +86,55 @@ def _yaml_scalar(text: str) -> Any:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         'experiment', help='run the paper experiments headless and draw Fig. 3-5',
-        description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        description=__doc__, epilog=EPILOG, formatter_class=HelpFormatter)
     p.add_argument('--conditions', default='innate,view,place,sync,async',
-                   help='comma-separated conditions (default: %(default)s)')
+                   help='comma-separated conditions')
     p.add_argument('--episodes', type=int, default=1000, help='learning episodes per run')
     p.add_argument('--seeds', type=int, default=5, help='number of seeds (0..N-1)')
-    p.add_argument('--first-seed', type=int, default=0, help='first seed (default 0)')
+    p.add_argument('--first-seed', type=int, default=0, help='first seed')
     p.add_argument('--eval-episodes', type=int, default=10,
                    help='evaluation episodes per start point A-E, at the end and at every '
-                        'evaluation point (default 10)')
+                        'evaluation point')
     p.add_argument('--eval-every', type=int, default=50, metavar='N',
                    help='every N learning episodes (and before the first), evaluate from each '
                         'start A-E with learning off: the Fig. 3a curve (paper Fig. 2 caption; '
-                        'default 50; 0 = off, Fig. 3a from the learning episodes)')
+                        '0 = off, Fig. 3a from the learning episodes)')
     p.add_argument('--preset', default='paper', choices=presets(),
-                   help='parameter preset: config/clis.yaml (paper, default) with the '
+                   help='parameter preset: config/clis.yaml (paper) with the '
                         'overrides of config/clis_PRESET.yaml (improved: beyond the paper)')
     p.add_argument('--ablation', action='store_true',
                    help='with --preset P: also Async with each change of P alone (on the '
                         'paper preset) and with all of them (P:async), on the same seeds')
     p.add_argument('--train-start', default='wander',
-                   help="where learning episodes start: 'wander' (default, the paper: the hand-"
+                   help="where learning episodes start: 'wander' (the paper: the hand-"
                         "made wander policy moves the robot from where the last episode ended),"
                         " 'starts' (one of A-E, random heading), 'random', or a start name")
     p.add_argument('--block', type=int, default=50,
-                   help='episodes per point of the learning curve (default 50, the paper)')
+                   help='episodes per point of the learning curve (50: the paper)')
     p.add_argument('--out', type=Path, required=True, help='output folder')
-    p.add_argument('--arena', type=Path, help='arena file (default config/arena.yaml)')
+    p.add_argument('--arena', type=Path, help='arena file (None: config/arena.yaml)')
     p.add_argument('--set', dest='sets', action='append', default=[], metavar='KEY=VALUE',
                    help='override config/clis.yaml for all conditions, e.g. common.beta=2')
     p.add_argument('--sim-set', dest='sim_sets', action='append', default=[],
                    metavar='KEY=VALUE',
                    help='override config/sim.yaml, e.g. sensors.ir_noise_sigma=0.0')
     p.add_argument('--workers', type=int, default=os.cpu_count() or 1,
-                   help='parallel processes (default: all cores); with --backend ray and no '
+                   help='parallel processes (all cores); with --backend ray and no '
                         '--address, the CPUs of the local Ray instance')
     p.add_argument('--backend', choices=BACKENDS, default='process',
-                   help="'process' (default): a pool of worker processes on this machine; "
+                   help="'process': a pool of worker processes on this machine; "
                         "'ray': Ray tasks (ray.init() starts a local instance bound to "
                         '127.0.0.1; docs/scale.md)')
     p.add_argument('--address', metavar='ADDR',
                    help='with --backend ray: join the running Ray cluster at ADDR (host:port '
                         'printed by `ray start --head`); its workers need this project '
                         'installed (docs/scale.md)')
-    p.add_argument('--resume', action='store_true', help='keep finished runs in OUT/runs')
-    p.add_argument('--figures-only', action='store_true', help='only merge and draw')
+    p.add_argument('--resume', action='store_true',
+                   help='keep the finished runs in OUT/runs (stops if any was made with other '
+                        'settings)')
+    p.add_argument('--figures-only', action='store_true',
+                   help="only merge and draw the runs of OUT (OUT/experiment.json's "
+                        'settings; the other flags are not used)')
     p.add_argument('--quiet', action='store_true', help='no progress output')
     p.set_defaults(func=main)
 
@@ -147,11 +154,11 @@ def ablation_conditions(preset: str, base: str = 'async') -> list[str]:
             for items in preset_groups(preset).values()]
 
 
-def _overrides(items: list[str]) -> dict[str, Any]:
+def _overrides(items: list[str], flag: str = '--set') -> dict[str, Any]:
     out = {}
     for item in items:
         if '=' not in item:
-            raise SystemExit(f'clis experiment: --set {item!r} must be KEY=VALUE')
+            raise ValueError(f'{flag} {item!r} must be KEY=VALUE')
         key, value = item.split('=', 1)
         out[key] = _yaml_scalar(value)
     return out
@@ -210,21 +217,30 @@ def _worker(spec: JobSpec, q) -> str:
     return str(path)
 
 
-def main(args: argparse.Namespace) -> int:
-    from clis_learner import figures
+def _fail(message: str, code: int = 2) -> int:
+    print(f'clis experiment: {message}', file=sys.stderr)
+    return code
 
+
+def main(args: argparse.Namespace) -> int:
+    """``clis experiment``: validate everything before anything is created in ``--out``."""
     out: Path = args.out
     runs_dir = out / 'runs'
-    runs_dir.mkdir(parents=True, exist_ok=True)
-    conditions = [c for c in args.conditions.split(',') if c.strip()]
+    if args.figures_only:
+        return figures_only(out)
+    conditions = [c.strip() for c in args.conditions.split(',') if c.strip()]
+    if not conditions:
+        return _fail('--conditions is empty')
+    twice = sorted({c for c in conditions if conditions.count(c) > 1})
+    if twice:
+        return _fail(f'--conditions lists {", ".join(twice)} more than once (each condition '
+                     'is one set of runs; more seeds: --seeds)')
     from clis_learner.core.config import preset_overrides as _preset
     preset_overrides = _preset(args.preset)
     with_preset = [True] * len(conditions)         # the preset applies to the conditions given
     if args.ablation:
         if args.preset == 'paper':
-            print('clis experiment: --ablation needs --preset (the changes to toggle)',
-                  file=sys.stderr)
-            return 2
+            return _fail('--ablation needs --preset (the changes to toggle)')
         singles = [c for c in ablation_conditions(args.preset) if c not in conditions]
         conditions += singles                      # each change alone, on the paper preset
         with_preset += [False] * len(singles)
@@ -234,29 +250,35 @@ def main(args: argparse.Namespace) -> int:
     try:
         parsed = [parse_condition(c) for c in conditions]
     except argparse.ArgumentTypeError as exc:
-        print(f'clis experiment: {exc}', file=sys.stderr)
-        return 2
+        return _fail(str(exc))
     if args.eval_every < 0:
-        print('clis experiment: --eval-every must be >= 0', file=sys.stderr)
-        return 2
-    if min(args.episodes, args.seeds, args.workers, args.block) < 1:
-        print('clis experiment: --episodes, --seeds, --workers and --block must be >= 1',
-              file=sys.stderr)
-        return 2
+        return _fail('--eval-every must be >= 0')
+    if args.eval_episodes < 0:
+        return _fail('--eval-episodes must be >= 0')
+    for flag, value in (('--episodes', args.episodes), ('--seeds', args.seeds),
+                        ('--workers', args.workers), ('--block', args.block)):
+        if value < 1:
+            return _fail(f'{flag} must be >= 1 (got {value})')
+    if args.first_seed < 0:
+        return _fail(f'--first-seed must be >= 0 (got {args.first_seed})')
     if args.address and args.backend != 'ray':
-        print('clis experiment: --address needs --backend ray', file=sys.stderr)
-        return 2
+        return _fail('--address needs --backend ray')
     if args.episodes < args.block:
-        print(f'clis experiment: --episodes {args.episodes} is shorter than one block '
-              f'(--block {args.block})', file=sys.stderr)
-        return 2
-    common = _overrides(args.sets)
-    sim_overrides = _overrides(args.sim_sets)
+        return _fail(f'--episodes {args.episodes} is shorter than one block (--block '
+                     f'{args.block}): give --block {args.episodes} or less')
+    if args.arena is not None and not args.arena.is_file():
+        return _fail(f'--arena {args.arena}: no such file')
+    try:
+        common = _overrides(args.sets, '--set')
+        sim_overrides = _overrides(args.sim_sets, '--sim-set')
+    except ValueError as exc:
+        return _fail(str(exc))
     specs = []
+    labels = []
     for label, (name, overrides), preset in zip(conditions, parsed, with_preset):
-        label = label.strip()
         if preset and preset_overrides:
             label, overrides = f'{args.preset}:{label}', {**preset_overrides, **overrides}
+        labels.append(label)
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             specs.append(JobSpec(
                 index=len(specs), label=label, condition=name,
@@ -265,14 +287,30 @@ def main(args: argparse.Namespace) -> int:
                 arena=str(args.arena) if args.arena else None, run_dir=str(runs_dir),
                 block=args.block, train_start=args.train_start, eval_every=args.eval_every,
                 preset=args.preset if preset else 'paper'))
+    twice = sorted({lb for lb in labels if labels.count(lb) > 1})
+    if twice:
+        return _fail(f'conditions {", ".join(twice)} appear more than once (with --ablation: '
+                     'leave out what it adds)')
     try:  # validate every parameter set before starting hours of work
+        from clis_learner.core.config import check_overrides
+        check_overrides(common, '--set')           # the flag, not clis.yaml, is to blame
         for spec in specs:
             spec.validate()
-    except ValueError as exc:
-        print(f'clis experiment: {exc}', file=sys.stderr)
-        return 2
-    (out / 'experiment.json').write_text(json.dumps({
-        'argv': sys.argv, 'conditions': conditions, 'episodes': args.episodes,
+    except (ValueError, OSError) as exc:
+        return _fail(str(exc))
+    if args.resume:
+        stale = resume_mismatches(specs)
+        if stale:
+            spec, diffs = stale[0]
+            more = f' (and {len(stale) - 1} more runs)' if len(stale) > 1 else ''
+            return _fail(
+                f'--resume: {spec.result_path()} was made with other settings: '
+                f'{"; ".join(diffs)}{more}. Its results are not those of this command: give '
+                f'a new --out, or rerun without --resume to redo the runs in {out}')
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    _atomic_write_text(out / 'experiment.json', json.dumps({
+        'argv': sys.argv, 'conditions': conditions, 'labels': labels,
+        'episodes': args.episodes,
         'seeds': list(range(args.first_seed, args.first_seed + args.seeds)),
         'eval_episodes': args.eval_episodes, 'sets': common, 'sim_sets': sim_overrides,
         'train_start': args.train_start, 'block': args.block, 'eval_every': args.eval_every,
@@ -280,9 +318,7 @@ def main(args: argparse.Namespace) -> int:
         'overrides': {s.label: s.overrides for s in specs},
         'arena': str(args.arena) if args.arena else None, 'backend': args.backend,
         'address': args.address}, indent=2))
-    todo = [s for s in specs if not (args.resume or args.figures_only) or not s.done()]
-    if args.figures_only:
-        todo = []
+    todo = [s for s in specs if not args.resume or not s.done()]
     t0 = time.monotonic()
     todo = longest_first(todo)
     if todo and args.backend == 'ray':
@@ -292,28 +328,71 @@ def main(args: argparse.Namespace) -> int:
                     Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
                              quiet=args.quiet))
         except ImportError as exc:
-            print(f'clis experiment: --backend ray needs ray ({exc}); `make setup` installs '
-                  'it', file=sys.stderr)
-            return 2
+            return _fail(f'--backend ray needs ray ({exc}); `make setup` installs it')
         except ConnectionError as exc:
-            print(f'clis experiment: cannot reach the Ray cluster at {args.address}: {exc} '
-                  '(is `ray start --head` running there? docs/scale.md)', file=sys.stderr)
-            return 1
+            return _fail(f'cannot reach the Ray cluster at {args.address}: {exc} (is `ray '
+                         'start --head` running there? docs/scale.md)', 1)
     elif todo:
         _run_all(todo, args.workers, args.quiet)
     wall = time.monotonic() - t0
     missing = [s for s in specs if not s.done()]
     if missing:
-        print(f'clis experiment: {len(missing)} runs have no results (e.g. {missing[0].label} '
-              f'seed {missing[0].seed}); rerun with --resume', file=sys.stderr)
-        return 1
+        return _fail(f'{len(missing)} runs have no results (e.g. {missing[0].label} seed '
+                     f'{missing[0].seed}); rerun with --resume', 1)
     results = [JobResult.load(s.result_path()) for s in specs]
-    summary = merge(results, out, wall_seconds=wall if todo else None)
+    return _finish(out, results, wall if todo else None)
+
+
+def _finish(out: Path, results: list[JobResult], wall: float | None) -> int:
+    """Merge the runs, draw the figures, print the table."""
+    from clis_learner import figures
+    summary = merge(results, out, wall_seconds=wall)
     figures.draw_all(out, results, summary)
-    print(f'\nwrote {out}/episodes.csv, eval.csv, summary.json and figures in {wall / 60:.1f} min')
+    took = f' in {wall / 60:.1f} min' if wall is not None else ''
+    print(f'\nwrote {out}/episodes.csv, eval.csv, summary.json and figures{took}')
     for line in summary['table']:
         print(line)
     return 0
+
+
+def resume_mismatches(specs: list[JobSpec]) -> list[tuple[JobSpec, list[str]]]:
+    """The finished runs that ``--resume`` would reuse but were made with another spec (other
+    episodes, overrides, seeds, arena, preset, parameters...), each with what differs."""
+    stale = []
+    for spec in specs:
+        if not spec.done():
+            continue
+        try:
+            saved = JobResult.load(spec.result_path())
+        except (ValueError, TypeError, OSError) as exc:
+            stale.append((spec, [f'unreadable ({exc})']))
+            continue
+        diffs = spec.differences(saved)
+        if diffs:
+            stale.append((spec, diffs))
+    return stale
+
+
+def figures_only(out: Path) -> int:
+    """``--figures-only``: merge and draw the runs that ``OUT/experiment.json`` lists, with
+    the settings they were made with (the other flags are not used); writes no
+    experiment.json."""
+    from clis_learner.core.runner import result_path
+    try:
+        exp = json.loads((out / 'experiment.json').read_text())
+    except FileNotFoundError:
+        return _fail(f'--figures-only: no {out}/experiment.json (not an experiment folder)')
+    except ValueError as exc:
+        return _fail(f'--figures-only: {out}/experiment.json is damaged ({exc})')
+    labels = exp.get('labels') or list(exp['overrides'])
+    paths = [result_path(out / 'runs', lb, seed) for lb in labels for seed in exp['seeds']]
+    missing = [p for p in paths if not p.is_file()]
+    if missing:
+        argv = ' '.join(exp.get('argv', [])[1:]) or 'experiment ...'
+        return _fail(f'--figures-only: {len(missing)} of {len(paths)} runs of {out} have no '
+                     f'results (e.g. {missing[0].name}); to finish them: clis {argv} --resume',
+                     1)
+    return _finish(out, [JobResult.load(p) for p in paths], None)
 
 
 def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
@@ -322,26 +401,37 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
     ctx = mp.get_context('fork' if sys.platform.startswith('linux') else 'spawn')
     if ctx.get_start_method() == 'fork':
         warm_up(todo[0])          # compiled kernels loaded once, inherited by every worker
-    manager = ctx.Manager()
+    manager = SyncManager(ctx=ctx)
+    manager.start(_ignore_sigint)     # Ctrl-C is the main process's to handle (cli.main)
     q = manager.Queue()
-    with ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1) as pool:
-        pending = [pool.apply_async(_worker, (spec, q)) for spec in todo]
-        remap = {s.index: k for k, s in enumerate(todo)}
-        while any(not p.ready() for p in pending) or not q.empty():
-            try:
-                kind, index, episodes, note = q.get(timeout=0.5)
-            except queue.Empty:
-                for p in pending:
-                    if p.ready() and not p.successful():
-                        p.get()  # re-raise the worker's exception
-                continue
-            if kind == 'done':
-                progress.finish(remap[index], episodes, note)
-            else:
-                progress.update(remap[index], episodes, note)
-        for p in pending:
-            p.get()
-    manager.shutdown()
+    try:
+        with ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1,
+                      initializer=_ignore_sigint) as pool:
+            pending = [pool.apply_async(_worker, (spec, q)) for spec in todo]
+            remap = {s.index: k for k, s in enumerate(todo)}
+            while any(not p.ready() for p in pending) or not q.empty():
+                try:
+                    kind, index, episodes, note = q.get(timeout=0.5)
+                except queue.Empty:
+                    for p in pending:
+                        if p.ready() and not p.successful():
+                            p.get()  # re-raise the worker's exception
+                    continue
+                if kind == 'done':
+                    progress.finish(remap[index], episodes, note)
+                else:
+                    progress.update(remap[index], episodes, note)
+            for p in pending:
+                p.get()
+    finally:
+        manager.shutdown()
+
+
+def _ignore_sigint() -> None:
+    """In the worker and manager processes: Ctrl-C (SIGINT to the whole process group) is
+    left to the main process, which stops them (the pool is terminated when its ``with``
+    block exits) and prints one line instead of a traceback per process."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _atomic_write_text(path: Path, text: str) -> None:
@@ -368,7 +458,9 @@ def merge(results: list[JobResult], out: Path, wall_seconds: float | None) -> di
     _write_csv(out / 'eval.csv', [r for res in results for r in res.evals])
     labels = list(dict.fromkeys(res.spec['label'] for res in results))
     by_label: dict[str, dict] = {}
-    table = [f'{"condition":28s} {"seeds":>5s} {"succ/50 first":>13s} {"succ/50 last":>12s} '
+    block = results[0].block if results else 50
+    first, last = f'succ/{block} first', f'succ/{block} last'
+    table = [f'{"condition":28s} {"seeds":>5s} {first:>13s} {last:>12s} '
              f'{"eval success":>12s} {"eval time s":>11s}']
     for label in labels:
         runs = [res for res in results if res.spec['label'] == label]

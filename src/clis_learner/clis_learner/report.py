@@ -10,19 +10,39 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+import sys
 
 import numpy as np
 
 from clis_learner.core.runner import CONDITIONS, JobResult
-from clis_learner.figures import STARTS, band
+from clis_learner.figures import MIN_BAND_SEEDS, STARTS, band
+
+
+class ReportError(ValueError):
+    """A folder that is not a finished experiment."""
 
 
 def load_runs(folders: list[Path]) -> list[JobResult]:
+    """The runs of each experiment folder: those its ``experiment.json`` lists (runs left in
+    ``runs/`` by an earlier experiment with other conditions or seeds are not its results),
+    or every run in ``runs/`` for a folder without one."""
+    import json
+
+    from clis_learner.core.runner import result_path
     runs = []
     for folder in folders:
+        if not folder.is_dir():
+            raise ReportError(f'{folder}: no such folder')
         paths = sorted((folder / 'runs').glob('*.json'))
+        exp_path = folder / 'experiment.json'
+        if exp_path.is_file():
+            exp = json.loads(exp_path.read_text())
+            listed = [result_path(folder / 'runs', lb, seed)
+                      for lb in exp.get('labels') or list(exp.get('overrides', {}))
+                      for seed in exp.get('seeds', [])]
+            paths = [p for p in listed if p.is_file()] if listed else paths
         if not paths:
-            raise SystemExit(f'clis report: no runs in {folder}/runs (run clis experiment)')
+            raise ReportError(f'no runs in {folder}/runs (run clis experiment)')
         runs += [JobResult.load(p) for p in paths]
     # the paper's order (innate, view, place, sync, async), each followed by its variants
     return sorted(runs, key=lambda r: (CONDITIONS.index(r.spec['condition']),
@@ -38,7 +58,19 @@ def _finite_stat(values: np.ndarray, fn=np.mean) -> float:
 
 
 def _fmt(mean: float, half: float) -> str:
-    return f'{mean:.1f} ± {half:.1f}'
+    """``mean ± half``; the mean alone where there is no band (fewer than 3 seeds)."""
+    return f'{mean:.1f} ± {half:.1f}' if np.isfinite(half) else f'{mean:.1f}'
+
+
+def _band_note(runs: list[JobResult]) -> str:
+    """The note under a table when a condition has too few seeds for its ± column."""
+    labels = list(dict.fromkeys(r.spec['label'] for r in runs))
+    few = [lb for lb in labels
+           if sum(r.spec['label'] == lb for r in runs) < MIN_BAND_SEEDS]
+    if not few:
+        return ''
+    return (f'\nNo ± for {", ".join(few)}: fewer than {MIN_BAND_SEEDS} seeds, a 95% t-band '
+            'would be wider than the scale (mean only).')
 
 
 def report(runs: list[JobResult]) -> str:
@@ -87,7 +119,7 @@ def report(runs: list[JobResult]) -> str:
                 'the module did not act (last third), and the largest |V_i(x(0))| of the run '
                 '(median over seeds; a return is at most 1 and rarely below -1, so more means '
                 'TD diverged).', '',
-                '| condition | module | share early | share mid | share late | Pr(i|x0) | '
+                '| condition | module | share early | share mid | share late | Pr(i\\|x0) | '
                 'median log10 c | max abs V |', '|---|---|---|---|---|---|---|---|']
         for lb in multi:
             rs = by[lb]
@@ -157,8 +189,13 @@ def eval_report(runs: list[JobResult]) -> str:
         if level is not None and rs[0].spec['condition'] != 'innate':
             hit = episodes_to_level(rs, level)
             reach = 'never' if hit is None else str(hit)
-        final = 100.0 * curves[:, -1] / n_eval
-        out.append(f'| {lb} | {len(rs)} | {cells} | {reach} | {_ci(final)}% (ep {pts[-1]}) |')
+        episodes = int(rs[0].spec.get('episodes', pts[-1]))
+        if pts[-1] >= episodes:                    # the curve's last point is after learning
+            final = 100.0 * curves[:, -1] / n_eval
+        else:   # fewer episodes than --eval-every: the evaluation after learning (A-E)
+            final = [100.0 * np.mean([e['reached'] for e in r.evals]) if r.evals
+                     else np.nan for r in rs]
+        out.append(f'| {lb} | {len(rs)} | {cells} | {reach} | {_ci(final)}% (ep {episodes}) |')
     multi = [lb for lb in labels if by[lb][0].solo]
     def single(multi_label: str, name: str) -> str | None:
         """The single-module label of the same preset (``improved:place`` for
@@ -206,14 +243,19 @@ def eval_report(runs: list[JobResult]) -> str:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from clis_learner.cli import HelpFormatter
     p = sub.add_parser('report', help='tables of measured results from experiment folders',
-                       description=__doc__)
+                       description=__doc__, formatter_class=HelpFormatter)
     p.add_argument('folders', type=Path, nargs='+', help='output folders of clis experiment')
     p.set_defaults(func=_main)
 
 
 def _main(args: argparse.Namespace) -> int:
-    runs = load_runs(args.folders)
+    try:
+        runs = load_runs(args.folders)
+    except (ReportError, ValueError, OSError) as exc:
+        print(f'clis report: {exc}', file=sys.stderr)
+        return 2
     ev = eval_report(runs)
-    print((ev + '\n\n' if ev else '') + report(runs))
+    print((ev + '\n\n' if ev else '') + report(runs) + _band_note(runs))
     return 0

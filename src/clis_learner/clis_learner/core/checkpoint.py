@@ -37,6 +37,13 @@ class CheckpointError(ValueError):
     """The checkpoint is missing, unreadable, or does not fit the modules."""
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def save_checkpoint(path: str | os.PathLike, modules: Sequence[ModuleCore],
                     params_hash: str = '', metadata: Mapping[str, Any] | None = None) -> Path:
     """Write the modules' parameters to ``path`` atomically.
@@ -69,6 +76,9 @@ def save_checkpoint(path: str | os.PathLike, modules: Sequence[ModuleCore],
     arrays['__meta__'] = np.asarray(json.dumps(meta, sort_keys=True))
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
     try:
+        # mkstemp makes the file 0600 (private while it is a temporary file); the checkpoint
+        # gets the mode of every other file the project writes (0666 less the umask)
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, 'wb') as fh:
             np.savez(fh, **arrays)
             fh.flush()

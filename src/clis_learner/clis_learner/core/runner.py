@@ -216,6 +216,12 @@ def arena_dict(arena: Arena) -> dict:
             'starts': {s.name: [s.x, s.y] for s in arena.starts}}
 
 
+def result_path(run_dir: str | os.PathLike, label: str, seed: int) -> Path:
+    """Where the run of ``label`` (a condition with its overrides) and ``seed`` is saved."""
+    slug = re.sub(r'[^A-Za-z0-9_.=-]+', '_', label)
+    return Path(run_dir) / f'{slug}__s{seed}.json'
+
+
 @dataclass
 class JobSpec:
     """One run: a condition (with overrides) and a seed."""
@@ -249,11 +255,32 @@ class JobSpec:
         draw_start(self.train_start, arena, np.random.default_rng(0))  # raises if unknown
 
     def result_path(self) -> Path:
-        slug = re.sub(r'[^A-Za-z0-9_.=-]+', '_', self.label)
-        return Path(self.run_dir) / f'{slug}__s{self.seed}.json'
+        return result_path(self.run_dir, self.label, self.seed)
 
     def done(self) -> bool:
         return self.result_path().is_file()
+
+    def differences(self, saved: JobResult) -> list[str]:
+        """What makes the saved run ``saved`` (at this spec's path) not a run of this spec:
+        ``'key=SAVED (now NEW)'`` for each field of the spec that changes results (all but
+        ``index`` and ``run_dir``), the parameter hash (config/clis.yaml with the overrides,
+        so also an edited config file) and the arena; empty when it is this run."""
+        try:
+            old = asdict(JobSpec(**{**saved.spec, 'index': self.index,
+                                    'run_dir': self.run_dir}))
+        except TypeError as exc:                       # a spec of another format
+            return [f'spec format ({exc})']
+        new = asdict(self)
+        diffs = [f'{k}={old[k]!r} (now {new[k]!r})' for k in new if old[k] != new[k]]
+        if diffs:
+            return diffs
+        params, _, arena = self.load()
+        if saved.params_hash and saved.params_hash != params_hash(params):
+            diffs.append(f'parameters (hash {saved.params_hash}, now {params_hash(params)}: '
+                         'config/clis.yaml changed)')
+        if saved.arena and saved.arena != json.loads(json.dumps(arena_dict(arena))):
+            diffs.append('arena (its file changed)')
+        return diffs
 
 
 @dataclass
