@@ -5,7 +5,7 @@ module of the condition (``clis_modules innate|view|place``), the arbiter and th
 a separate process started exactly as ``ros2 run PKG EXE --ros-args ...`` would start it (the
 executables colcon installed in ``install/PKG/lib/PKG/``), all on the loopback and on this
 run's own ``ROS_DOMAIN_ID``. The simulator runs under sim time (``/clock``) as fast as the graph
-keeps up (``--speed 0``, default), ``--speed X`` times real time, or ``--real-time``; after each
+keeps up (``--speed 0``, default) or ``--speed X`` times real time (1: real time); after each
 episode it holds its clock until the learner has learned from it (``node.wait_for_learner``),
 as the real robot wanders to its next start while the learner learns.
 
@@ -22,6 +22,13 @@ learner is restarted from its last checkpoint (``learner_node.resume``); the sim
 
 ``--single-process`` runs every node in this process, in one executor (like a component
 container); docs/benchmarks.md compares both.
+
+Every input (arena, parameter files, checkpoint, device, output folder...) is checked before
+any process starts and before anything is written: a bad one stops ``clis run`` with one line
+naming the option (exit code 2). ``--resume CKPT`` continues the run of CKPT: its episodes are
+numbered on from the checkpoint's, with random draws of their own (the simulator's
+``node.first_episode``; the modules and the arbiter draw from (seed, episode)), and into the
+same ``--out`` the table ``episodes.csv`` keeps the rows up to the checkpoint's episode.
 
 Exit codes: 0 done; 1 a child died and could not be restarted; 2 bad arguments or a bad
 parameter (the child's message names the key); 3 the graph did not come up;
@@ -125,11 +132,12 @@ class GraphPlan:
 
 def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str = '',
                arena: str = '', robot: str = 'sim', device: str = 'emulator',
-               record: str = '', realtime: int = 0) -> GraphPlan:
+               record: str = '', realtime: int = 0, first_episode: int = 1) -> GraphPlan:
     """The nodes of ``condition``, with the parameters ``clis run`` gives each;
     ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
     ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
-    :func:`cr_sim.lifecycle.realtime`)."""
+    :func:`cr_sim.lifecycle.realtime`); ``first_episode`` > 1: the number of the simulator's
+    first episode (a resumed run)."""
     from clis_modules.core.modules import condition_periods
 
     from clis_learner.core.config import load_clis_params
@@ -168,6 +176,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         'node.start_subscribers': matched,
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
+        **({'node.first_episode': first_episode} if first_episode > 1 else {}),
         **priority('node.realtime_priority', 'sim')},
         restart='never'))
     return plan
@@ -422,10 +431,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='which modules run (default: %(default)s)')
     p.add_argument('--episodes', type=int, default=100,
                    help='learned episodes before stopping (default: %(default)s)')
-    speed = p.add_mutually_exclusive_group()
-    speed.add_argument('--speed', type=float, default=0.0,
-                       help='sim time / wall time; 0 = as fast as the graph keeps up (default)')
-    speed.add_argument('--real-time', action='store_true', help='same as --speed 1')
+    p.add_argument('--speed', type=float, default=0.0,
+                   help='sim time / wall time; 0 = as fast as the graph keeps up (default), '
+                        '1 = real time')
+    # one name per flag: --real-time (--speed 1) read as --realtime (a priority) by a dash
+    p.add_argument('--real-time', nargs=0, action=_Removed, help=argparse.SUPPRESS,
+                   default=argparse.SUPPRESS,
+                   instead='--speed 1 (--realtime PRIO is the SCHED_FIFO priority)')
     p.add_argument('--seed', type=int, default=0, help='seed of the run (default 0)')
     p.add_argument('--params', type=Path, action='append', default=[], metavar='FILE',
                    help='a ROS parameter file given to every node (--params-file), e.g. to '
@@ -467,39 +479,155 @@ def register(sub: argparse._SubParsersAction) -> None:
                         '-r, else each node warns and runs with the default scheduling')
     p.add_argument('--quiet', action='store_true', help='no progress line')
     p.set_defaults(func=main)
+    _one_line_errors(p)
+
+
+class _Removed(argparse.Action):
+    """A removed flag: using it is an error naming the one to use ``instead``."""
+
+    def __init__(self, *args, instead: str = '', **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.instead = instead
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        parser.error(f'{option_string} was removed: use {self.instead}')
+
+
+def _one_line_errors(parser: argparse.ArgumentParser) -> None:
+    """A bad argument ends ``clis run`` with one line naming the option (exit code 2),
+    not argparse's usage block."""
+    def error(message: str):
+        parser.exit(EXIT_CONFIG, f'{parser.prog}: {message} (see {parser.prog} --help)\n')
+    parser.error = error
 
 
 def _check_args(args: argparse.Namespace) -> str | None:
+    """Every option checked before anything starts or is written: the first error, one line
+    naming the option, or None. Sets ``args.first_episode`` (1, or the episode after the
+    checkpoint's)."""
     if args.episodes < 1:
         return f'--episodes {args.episodes}: must be at least 1'
-    if args.real_time:
-        args.speed = 1.0
     if not 0.0 <= args.speed <= 1000.0:
         return f'--speed {args.speed}: must be in [0, 1000] (0 = as fast as possible)'
     if not 0 <= args.seed < 2**31:
         return f'--seed {args.seed}: must be in [0, 2^31)'
-    for f in args.params:
-        if not f.is_file():
-            return f'--params {f}: no such file'
-    if args.resume is not None and not args.resume.is_file():
-        return f'--resume {args.resume}: no such checkpoint'
     if args.block < 1:
         return f'--block {args.block}: must be at least 1'
+    if not math.isfinite(args.time_limit) or args.time_limit < 0:
+        return f'--time-limit {args.time_limit}: must be >= 0 minutes'
+    if args.max_restarts < 0:
+        return f'--max-restarts {args.max_restarts}: must be >= 0'
+    if not 0 < args.startup_timeout < math.inf:
+        return f'--startup-timeout {args.startup_timeout}: must be > 0 seconds'
+    top = 99 - max(REALTIME_ABOVE.values())
+    if not 0 <= args.realtime <= top:
+        return (f'--realtime {args.realtime}: must be in [1, {top}] (SCHED_FIFO priority of the '
+                f'modules; the simulator and the arbiter run above it; 0 = off)')
     if args.robot == 'bridge':
         if args.single_process:
             return '--single-process runs the simulator only: not with --robot bridge'
         if args.speed == 0:
             args.speed = 1.0              # the robot's clock does not wait: real time
-        if args.device != 'emulator' and args.speed != 1.0:
-            return f'--speed {args.speed}: a real robot runs at real time (only the emulator ' \
-                   'runs faster)'
-    if args.time_limit < 0:
-        return f'--time-limit {args.time_limit}: must be >= 0 minutes'
-    top = 99 - max(REALTIME_ABOVE.values())
-    if not 0 <= args.realtime <= top:
-        return (f'--realtime {args.realtime}: must be in [1, {top}] (SCHED_FIFO priority of the '
-                f'modules; the simulator and the arbiter run above it; 0 = off)')
+        if args.device != 'emulator':
+            if args.speed != 1.0:
+                return f'--speed {args.speed}: a real robot runs at real time (only the ' \
+                       'emulator runs faster)'
+            if error := _check_device(args.device):
+                return f'--device {args.device}: {error}'
+    for opt, path in (('--out', args.out), ('--record', args.record)):
+        if path is not None and path.exists() and not path.is_dir():
+            return f'{opt} {path}: exists and is not a folder'
+    from cr_sim.core.arena import load_arena
+    from cr_sim.core.params import ConfigError
+
+    from clis_learner.core.config import check_params_file, load_clis_params
+    try:
+        arena = load_arena(args.arena or None)
+    except (ConfigError, OSError) as exc:
+        return f'--arena {args.arena}: {_strip(exc, args.arena)}'
+    clis_keys: dict[str, Any] = {}
+    for f in args.params:
+        try:
+            flat = check_params_file(f)
+        except (ConfigError, OSError) as exc:
+            return f'--params {f}: {_strip(exc, f)}'
+        clis_keys.update(flat)
+    args.first_episode = 1
+    if args.resume is None:
+        return None
+    from clis_modules.core.modules import arena_map, make_modules
+
+    from clis_learner.core.checkpoint import CheckpointError, load_checkpoint
+    from clis_learner.core.config import params_hash
+    clis = load_clis_params(overrides={k: v for k, v in clis_keys.items()
+                                       if k in _clis_keys()} or None)
+    try:
+        meta = load_checkpoint(args.resume, make_modules(clis, args.condition,
+                                                         *arena_map(arena)),
+                               params_hash(clis))
+    except CheckpointError as exc:
+        return f'--resume {args.resume}: {_strip(exc, args.resume)} (the learner of ' \
+               f'--condition {args.condition} with these parameters cannot start from it)'
+    extra = meta.get('extra', {})
+    for key in ('condition', 'seed'):
+        if key in extra and extra[key] != getattr(args, key):
+            return f'--resume {args.resume}: a checkpoint of --{key} {extra[key]}, not ' \
+                   f'{getattr(args, key)}'
+    args.first_episode = int(extra.get('episode', 0)) + 1
     return None
+
+
+def _clis_keys() -> set[str]:
+    from cr_sim.core.params import config_dir, flatten, ros_parameters
+
+    from clis_learner.core.config import CLIS_NODE
+    return set(flatten(ros_parameters(config_dir() / 'clis.yaml', CLIS_NODE)))
+
+
+def _strip(exc: Exception, path: Any) -> str:
+    """An error's text without a leading ``PATH: `` (the option's line names the path)."""
+    return str(exc).removeprefix(f'{path}: ')
+
+
+def _check_device(url: str) -> str | None:
+    """Why the robot's link ``url`` is malformed (None if it is not): udp://HOST:PORT, a
+    serial device that exists, or a pyserial URL (SCHEME://...)."""
+    from urllib.parse import urlsplit
+    if url.startswith('udp://'):
+        from cr_bridge.transport import parse_udp
+        try:
+            parse_udp(url)
+        except ValueError:
+            return 'expected udp://HOST:PORT'
+        return None
+    if '://' in url:
+        scheme = urlsplit(url).scheme
+        if scheme not in ('socket', 'rfc2217', 'loop', 'spy', 'alt', 'hwgrep', 'cp2110'):
+            return f'unknown link scheme {scheme!r} (udp, socket, rfc2217, loop...)'
+        return None
+    if not Path(url).exists():
+        return 'no such serial device'
+    return None
+
+
+def _keep_rows_until(path: Path, episode: int) -> int:
+    """Drop the rows of ``episodes.csv`` after ``episode`` (written after the checkpoint a run
+    resumes from: they are run again); how many were dropped."""
+    if not path.is_file():
+        return 0
+    with open(path, newline='') as fh:
+        rows = list(csv.reader(fh))
+    if not rows or 'episode' not in rows[0]:
+        return 0
+    col = rows[0].index('episode')
+    keep = [rows[0]] + [r for r in rows[1:] if r and float(r[col]) <= episode]
+    if len(keep) == len(rows):
+        return 0
+    tmp = path.with_suffix('.csv.tmp')
+    with open(tmp, 'w', newline='') as fh:
+        csv.writer(fh).writerows(keep)
+    os.replace(tmp, path)
+    return len(rows) - len(keep)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -512,28 +640,35 @@ def main(args: argparse.Namespace) -> int:
                                           f'{time.strftime("%Y%m%d-%H%M%S")}')
     out = args.out.resolve()
     if (out / 'episodes.csv').is_file() and args.resume is None:
-        print(f'clis run: {out} already holds a run: continue it with --resume '
+        print(f'clis run: --out {out} already holds a run: continue it with --resume '
               f'{out / "checkpoint.npz"}, or choose another --out', file=sys.stderr)
         return EXIT_CONFIG
-    out.mkdir(parents=True, exist_ok=True)
     # the graph's nodes (and this process's monitor) pass their data through shared memory
     from clis_learner.ros_env import use_graph_profile
     use_graph_profile()
     plan = plan_graph(args.condition, args.seed, out, args.speed,
                       str(args.resume.resolve()) if args.resume else '', args.arena,
                       args.robot, args.device,
-                      str(args.record.resolve()) if args.record else '', args.realtime)
+                      str(args.record.resolve()) if args.record else '', args.realtime,
+                      args.first_episode)
     if args.foxglove is not None:                    # the live view (docs/foxglove.md)
         from clis_learner.foxglove_node import plan_live_view
         if error := plan_live_view(plan, args):
             print(f'clis run: {error}', file=sys.stderr)
             return EXIT_CONFIG
+    out.mkdir(parents=True, exist_ok=True)              # every input checked: now write
     tty = sys.stderr.isatty() and not args.quiet
 
     def say(text: str) -> None:
         print(('\r\033[K' if tty else '') + text, file=sys.stderr, flush=True)
 
+    if args.first_episode > 1 and (n := _keep_rows_until(out / 'episodes.csv',
+                                                         args.first_episode - 1)):
+        say(f"clis run: {n} rows of episodes.csv after the checkpoint's episode "
+            f'{args.first_episode - 1} dropped (run again)')
+
     say(f'clis run: {args.condition}, seed {args.seed}, {args.episodes} episodes, '
+        + (f'from episode {args.first_episode}, ' if args.first_episode > 1 else '')
         + (f'robot bridge ({args.device}), ' if args.robot == 'bridge' else '') +
         f'speed {"max" if args.speed == 0 else f"x{args.speed:g}"}, ROS_DOMAIN_ID '
         f'{os.environ.get("ROS_DOMAIN_ID")}, out {out}')

@@ -85,6 +85,9 @@ class SimNodeParams:
                                    '0 = default scheduling; > 0 also holds the CPU wake-up '
                                    'latency at 0 us (idle cores poll). Fail-soft without the '
                                    'right to it')
+    first_episode: int = param(1, 2**31 - 1, doc='number of the first episode; > 1 resumes a '
+                               'run (clis run --resume): its generators are then drawn from '
+                               '(seed, stream, first_episode), not those of episode 1 again')
     round_trip_log: str = param(doc="lockstep: append 'sim_time round_trip_ms' of every held "
                                 "instant to this file ('' = none); p50/p99 are logged at exit")
 
@@ -99,13 +102,16 @@ class SimNode(Node):
         self.cfg = build(SimNodeParams, values.pop('node'), where='node')
         self.params = build(SimParams, values)
         self.arena = load_arena(self.cfg.arena_file or None)
-        # the same generators as the headless runner's for a seed (clis_learner.core.runner)
-        self.sim = Simulator(self.arena, self.params, np.random.default_rng([self.cfg.seed, 0]))
-        self.start_rng = np.random.default_rng([self.cfg.seed, 1])
+        # the same generators as the headless runner's for a seed (clis_learner.core.runner);
+        # a resumed run's own, so that it does not replay the draws of episode 1 and on
+        resumed = [self.cfg.first_episode] if self.cfg.first_episode > 1 else []
+        self.sim = Simulator(self.arena, self.params,
+                             np.random.default_rng([self.cfg.seed, 0, *resumed]))
+        self.start_rng = np.random.default_rng([self.cfg.seed, 1, *resumed])
         self.wheel_base = self.params.robot.wheel_base
         self.u = np.zeros(2)
         self.u_time = -np.inf
-        self.episode = 0
+        self.episode = self.cfg.first_episode - 1     # the last episode started
         self._time_offset = 0.0
         self.t_start = 0.0                  # sim time of the running episode's start
         self.episode_return = 0.0
@@ -184,7 +190,7 @@ class SimNode(Node):
         return response
 
     def _start_episode(self) -> None:
-        if self.episode:
+        if self.episode >= self.cfg.first_episode:    # not this process's first
             # /clock stays monotonic across episodes, and the next episode starts one tick
             # after the end, so that every stamp belongs to one episode only
             self._time_offset += self.sim.t + self.dt

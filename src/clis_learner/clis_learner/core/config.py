@@ -8,29 +8,34 @@ Sections: ``common`` (gamma, base tick, beta, epsilon, speed limit), ``innate``,
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 import hashlib
 import json
 import os
+from pathlib import Path
 from typing import Any
 
 from clis_modules.core.modules import ModuleSetParams
 from cr_sim.core.params import (
+    ConfigError,
     as_dict,
     config_dir,
     dataclass,
     flatten,
     load_params,
+    load_yaml,
     param,
     ros_parameters,
 )
+from cr_sim.ros_params import is_ros_key, project_keys, unknown_key
 
 from clis_learner.core.corrections import BEHAVIOUR_STATES, BEHAVIOURS, CORRECTIONS
 from clis_learner.core.resample import RESAMPLE_METHODS
 from clis_learner.core.updates import POLICY_STEPS, POLICY_UPDATES, STEP_NORMS, VALUE_UPDATES
 
 __all__ = ['LearnerParams', 'ClisParams', 'load_clis_params', 'params_hash', 'CLIS_NODE',
-           'PRESET_NAMES', 'preset_overrides', 'preset_groups', 'PRESET_GROUPS']
+           'PRESET_NAMES', 'preset_overrides', 'preset_groups', 'PRESET_GROUPS',
+           'check_overrides', 'check_params_file']
 
 #: Node key of the parameter file: every node reads the same CLIS parameters.
 CLIS_NODE = '/**'
@@ -133,7 +138,8 @@ def preset_groups(name: str) -> dict[str, dict[str, Any]]:
 
 
 def load_clis_params(path: str | os.PathLike | None = None,
-                     overrides: Mapping[str, Any] | None = None) -> ClisParams:
+                     overrides: Mapping[str, Any] | None = None,
+                     source: str = 'override') -> ClisParams:
     """Read ``/**: ros__parameters:`` of a CLIS parameter file into :class:`ClisParams`.
 
     Parameters
@@ -142,14 +148,92 @@ def load_clis_params(path: str | os.PathLike | None = None,
         Default ``config_dir() / 'clis.yaml'``.
     overrides : Mapping, optional
         Values replacing the file's, nested (``{'common': {'beta': 200.0}}``) and/or dotted
-        (``{'common.beta': 200.0}``). Every key must exist in the file.
+        (``{'common.beta': 200.0}``). Every key must exist in the file
+        (:func:`check_overrides`).
+    source : str
+        Where the overrides come from (``--set``, a parameter file...): the error names it.
 
     Raises
     ------
     ConfigError
-        Naming the file and the dotted key: missing, unknown, wrong type or out of range.
+        A bad file names the file and the dotted key (missing, unknown, wrong type or out of
+        range); a bad override names ``source`` and the key (an unknown one with the nearest
+        known key), not the file.
     """
-    return load_params(ClisParams, 'clis.yaml', CLIS_NODE, path, overrides)
+    params = load_params(ClisParams, 'clis.yaml', CLIS_NODE, path)
+    if not overrides:
+        return params
+    file = Path(path) if path is not None else config_dir() / 'clis.yaml'
+    check_overrides(overrides, source, flatten(ros_parameters(file, CLIS_NODE)))
+    try:
+        return load_params(ClisParams, 'clis.yaml', CLIS_NODE, path, overrides)
+    except ConfigError as exc:             # the file is fine (above): the override is not
+        raise ConfigError(f'{source}: {str(exc).removeprefix(f"{file}: ")}') from None
+
+
+def check_overrides(overrides: Mapping[str, Any], source: str,
+                    known: Collection[str] | None = None) -> dict[str, Any]:
+    """The overrides as dotted keys, each of which must be a key of ``known``.
+
+    The one check of parameter keys given by the user, ``clis experiment --set KEY=VALUE``
+    and ``clis run --params FILE`` alike (docs/design.md, parameters).
+
+    Parameters
+    ----------
+    overrides : Mapping
+        Nested and/or dotted.
+    source : str
+        What the user gave them with (``--set``, the file): the error names it.
+    known : collection of str, optional
+        The allowed dotted keys; default those of ``config/clis.yaml``.
+
+    Raises
+    ------
+    ConfigError
+        ``SOURCE: unknown key KEY; did you mean NEAREST?`` (the nearest known key by
+        :func:`difflib.get_close_matches`, when one is close).
+    """
+    flat = flatten(overrides or {})
+    if known is None:
+        known = flatten(ros_parameters(config_dir() / 'clis.yaml', CLIS_NODE))
+    for key in flat:
+        if key not in known:
+            raise unknown_key(key, known, source)
+    return flat
+
+
+def check_params_file(path: str | os.PathLike) -> dict[str, Any]:
+    """Check a ROS 2 parameter file a user gives every node (``clis run --params FILE``).
+
+    Every key must be one that a node of the project declares (:func:`check_overrides`
+    against :func:`cr_sim.ros_params.project_keys`), and the CLIS keys (``config/clis.yaml``)
+    must hold allowed values (:func:`load_clis_params`); the nodes check the others' values at
+    start.
+
+    Returns
+    -------
+    dict
+        The file's dotted keys and values (all node sections together).
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the key: not a parameter file, unknown key (with the nearest
+        known), a CLIS value of the wrong type or out of range.
+    """
+    data = load_yaml(path)
+    flat: dict[str, Any] = {}
+    for node, section in data.items():
+        if not isinstance(section, Mapping) or set(section) != {'ros__parameters'} \
+                or not isinstance(section['ros__parameters'], Mapping):
+            raise ConfigError(f'{path}: {node}: expected "{node}: ros__parameters: KEY: '
+                              'VALUE" (a ROS 2 parameter file)')
+        flat.update(flatten(section['ros__parameters']))
+    check_overrides({k: v for k, v in flat.items() if not is_ros_key(k)}, str(path),
+                    project_keys())
+    clis = flatten(ros_parameters(config_dir() / 'clis.yaml', CLIS_NODE))
+    load_clis_params(overrides={k: v for k, v in flat.items() if k in clis}, source=str(path))
+    return flat
 
 
 def params_hash(params: Any) -> str:
