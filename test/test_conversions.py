@@ -49,3 +49,60 @@ def test_to_time_rounds_to_the_nearest_nanosecond():
         assert 0 <= stamp.nanosec < 1_000_000_000
         assert abs(from_time(stamp) - t) < 1e-9
     assert (to_time(180.99999999997).sec, to_time(180.99999999997).nanosec) == (181, 0)
+
+
+# ---------------------------------------------------------------- against hand-computed messages
+# A round trip passes a mirrored bug (left/right swapped on both sides); these fix each side.
+
+def test_cmd_from_wheels_is_the_hand_computed_twist():
+    # wheels (0.2, 0.5) m/s, wheel base 0.16 m: v = (0.2 + 0.5) / 2, omega = (0.5 - 0.2) / 0.16
+    msg = conv.cmd_from_wheels([0.2, 0.5], 0.16, 1.5, 'base_link')
+    assert msg.twist.linear.x == pytest.approx(0.35)
+    assert msg.twist.angular.z == pytest.approx(1.875)          # counter-clockwise: left turn
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1, 500_000_000)
+    assert msg.header.frame_id == 'base_link'
+    plain = conv.cmd_from_wheels([0.2, 0.5], 0.16, 1.5, 'base_link', stamped=False)
+    assert (plain.linear.x, plain.angular.z) == (pytest.approx(0.35), pytest.approx(1.875))
+
+
+def test_wheels_from_cmd_is_the_hand_computed_pair():
+    from geometry_msgs.msg import Twist, TwistStamped
+    twist = Twist()
+    twist.linear.x, twist.angular.z = 0.35, 1.875     # a left turn: the right wheel is faster
+    assert np.allclose(conv.wheels_from_cmd(twist, 0.16), [0.2, 0.5])
+    assert np.allclose(conv.wheels_from_cmd(TwistStamped(twist=twist), 0.16), [0.2, 0.5])
+
+
+def test_wheels_and_odom_messages_are_the_hand_computed_ones():
+    msg = conv.wheels_msg([0.3, -0.1], 2.25, 'base_link')
+    assert list(msg.name) == ['left_wheel', 'right_wheel']
+    assert list(msg.velocity) == [0.3, -0.1]
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (2, 250_000_000)
+    # pose (1, 2, pi/2), wheels (0.3, -0.1), base 0.16: v = 0.1, omega = -0.4 / 0.16 = -2.5
+    odom = conv.odom_msg(np.array([1.0, 2.0, math.pi / 2]), np.array([0.3, -0.1]), 0.16, 2.25,
+                         'odom', 'base_link')
+    assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
+    assert (odom.pose.pose.position.x, odom.pose.pose.position.y) == (1.0, 2.0)
+    assert odom.pose.pose.orientation.z == pytest.approx(math.sqrt(0.5))
+    assert odom.pose.pose.orientation.w == pytest.approx(math.sqrt(0.5))
+    assert odom.twist.twist.linear.x == pytest.approx(0.1)
+    assert odom.twist.twist.angular.z == pytest.approx(-2.5)
+
+
+def test_sensor_and_reward_messages_are_the_hand_computed_ones():
+    angles = np.deg2rad([-90, -60, -30, 0, 30, 60, 90])
+    scan = conv.ir_msg(np.linspace(0.05, 0.5, 7), angles, 0.5, 7.25, 'base_link')
+    assert scan.angle_min == pytest.approx(-math.pi / 2)
+    assert scan.angle_max == pytest.approx(math.pi / 2)
+    assert scan.angle_increment == pytest.approx(math.pi / 6)
+    assert (scan.range_min, scan.range_max) == (0.0, 0.5)
+    assert list(scan.ranges) == pytest.approx([0.05, 0.125, 0.2, 0.275, 0.35, 0.425, 0.5])
+    cam = conv.bearings_msg(['destination', 'L1'], [0.1, math.nan], 7.25, 'base_link')
+    assert list(cam.name) == ['destination', 'L1'] and cam.position[0] == 0.1
+    assert math.isnan(cam.position[1]) and cam.header.frame_id == 'base_link'
+    r = conv.reward_msg(-0.1, 0.9, 4, 7.25)
+    assert (r.vector.x, r.vector.y, r.vector.z) == (-0.1, 0.9, 4.0)
+    ev = conv.episode_msg('reached', 7.25, episode=3)
+    assert ev.status[0].message == 'reached'
+    assert [(kv.key, kv.value) for kv in ev.status[0].values] == [('episode', '3')]
+    assert (ev.header.stamp.sec, ev.header.stamp.nanosec) == (7, 250_000_000)
