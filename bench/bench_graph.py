@@ -20,7 +20,7 @@ processes, lockstep, every module timer firing) and observes it from this proces
   the arbiter and three DDS hops; and, as before, the same seen by a subscriber in this
   process (arrival of ``wheels`` stamped t to arrival of ``cmd_vel`` stamped t), which adds
   this process's own queueing; measured as fast as the graph goes and at real time
-  (``--real-time``: the robot's operating point, every node idle between instants; from
+  (``--speed 1``: the robot's operating point, every node idle between instants; from
   :data:`PACED_WARMUP` s after the first commands);
 - the same run with ``--single-process`` (every node in one process and one executor);
 - the executors: the same run with every node on rclpy's SingleThreadedExecutor and on its
@@ -56,7 +56,7 @@ from clis_learner.graph import REALTIME_ABOVE  # noqa: E402
 from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 TICK = os.sysconf('SC_CLK_TCK')
-#: Paced runs (``--real-time``) are measured from this many wall seconds after the first
+#: Paced runs (``--speed 1``) are measured from this many wall seconds after the first
 #: commands: each node's first decisions and one full garbage collection per process (13-195 ms,
 #: 4-34 s after its start) belong to the start-up (docs/benchmarks.md)
 PACED_WARMUP = 15.0
@@ -266,7 +266,7 @@ def main() -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--seconds', type=float, default=30.0)
     ap.add_argument('--real-time-seconds', type=float, default=60.0,
-                    help='wall seconds of the latency measurements at real time (--real-time)')
+                    help='wall seconds of the latency measurements at real time (--speed 1)')
     ap.add_argument('--json', metavar='FILE')
     ap.add_argument('--cpu-only', action='store_true',
                     help='only the graph as processes: CPU per sim-second (and what else '
@@ -309,7 +309,7 @@ def main() -> int:
               + ', '.join(f'{k} {v:.0f}' for k, v in r['cpu_percent'].items())
               + (f'; {cpu_line(r)}' if r['sim_s'] > 0 else ''))
     for alone, r in paced.items():
-        print(f'{"one process" if alone else "processes  "} at real time (--real-time): '
+        print(f'{"one process" if alone else "processes  "} at real time (--speed 1): '
               f'{latency_line(r)}')
     for speed, r in fifo.items():
         # (the subscriber in this process, not real-time, is starved by the graph: not shown)
@@ -337,7 +337,7 @@ def main() -> int:
                             f'(load average {multi["load_avg_1min"]:.1f} | '
                             f'{single["load_avg_1min"]:.1f})',
                  'value': f'{rtt(multi)} | {rtt(single)}', 'goal': 'p99 <= 5 ms'},
-                {'measure': 'the same at real time (--real-time): processes | one process '
+                {'measure': 'the same at real time (--speed 1): processes | one process '
                             f'(load {paced[False]["load_avg_1min"]:.1f} | '
                             f'{paced[True]["load_avg_1min"]:.1f})',
                  'value': f'{rtt(paced[False])} | {rtt(paced[True])}', 'goal': 'p99 <= 5 ms'},

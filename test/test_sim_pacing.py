@@ -1,4 +1,4 @@
-"""The simulator's speed cap holds in lockstep (`clis run --speed X`, `--real-time`)."""
+"""The simulator's speed cap holds in lockstep (`clis run --speed X`)."""
 
 from __future__ import annotations
 
