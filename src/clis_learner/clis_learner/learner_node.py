@@ -98,6 +98,7 @@ class LearnerNode(GraphNode):
             version = int(meta['extra'].get('version', 0))
             self.get_logger().info(f'resumed from {self.cfg.resume}: version {version}')
         self.record_wall = -math.inf            # wall time the last record arrived
+        self._held_said = False
         self.stream = EpisodeStream(self.modules, self.clis, self.graph.condition,
                                     self.graph.seed, version)
         self.out = Path(self.cfg.out_dir) if self.cfg.out_dir else None
@@ -241,6 +242,13 @@ class LearnerNode(GraphNode):
                 f'episode {closed.episode}: the rewards received sum to '
                 f'{closed.row["ret"]:.3f}, the simulator says {closed.sim_return:.3f}: reward '
                 'messages were lost (learning from it anyway; `complete` = 0 in episodes.csv)')
+        if closed.row.get('held_steps') and not self._held_said:
+            self._held_said = True
+            self.get_logger().warning(
+                f'episode {closed.episode}: {closed.row["held_steps"]} off-policy steps scored '
+                "the behaviour's density at its latest decision, not at the learner's instant "
+                '(learner.behaviour_state = resampled needs observations that the module nodes '
+                'do not publish yet; column held_steps of episodes.csv)')
         if closed.learned:
             if self.out is not None:
                 save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,

@@ -178,14 +178,20 @@ class EpisodeStream:
         complete = not abs(ret - c['return']) > 1e-6           # NaN: the sim did not say
         # learn only from episodes recorded from their start
         learnable = self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
+        held = self.learner.held_steps
         diag = self.learner.learn(mem) if learnable else {}
         if learnable:
             self.version += 1
+        # off-policy steps whose behaviour density was scored at the behaviour's held state:
+        # the module nodes publish no observations between their decisions (yet), so with
+        # learner.behaviour_state = resampled the graph's Async episodes fall back to 'held'
+        held = self.learner.held_steps - held
         row = {'label': self.condition, 'condition': self.condition, 'seed': self.seed,
                'phase': 'train', 'episode': ep['index'],
                **episode_row(mem, self.names, probs, values, diag, ep['start']),
                'event': c['event'], 'learned': int(learnable), 'version': self.version,
-               'stale_decisions': ep['stale'], 'complete': int(complete), 't_end': c['t_end']}
+               'stale_decisions': ep['stale'], 'complete': int(complete), 't_end': c['t_end'],
+               'held_steps': held}
         return Closed(row, learnable, c['t_end'], ep['index'], c['return'])
 
     def _first_draw(self, t0: float, t_end: float) -> tuple[list | None, list | None]:
