@@ -38,7 +38,7 @@ VARIANTS ?= $(subst $(space),,$(strip $(VARIANT_LIST)))
 help:
 	@sed -n '2,6p' Makefile | sed 's/^# *//'
 
-setup: $(VENV)/.stamp install/.stamp test/foxglove_reader/.stamp
+setup: $(VENV)/.stamp install/.stamp test/foxglove_reader/.stamp $(VENV)/.gym.stamp
 
 $(VENV)/.stamp: requirements.txt requirements-py.txt
 ifeq ($(SYSTEM_ROS),1)
@@ -59,6 +59,16 @@ install/.stamp: $(VENV)/.stamp $(SOURCES)
 	  $(VENV)/bin/colcon --log-base log build --base-paths src --symlink-install \
 	  --event-handlers console_cohesion- summary- >log/colcon-build.txt 2>&1 \
 	  || { mkdir -p log; cat log/colcon-build.txt; exit 1; }
+	@touch $@
+
+# gymnasium.make('CRNav-v0') in any interpreter of the venv with no import first (docs/gym.md):
+# Gymnasium 1.x loads no plugins, so a start-up hook registers it when gymnasium is imported.
+GYM_HOOK := src/cr_sim/cr_sim/gym_plugin.py
+$(VENV)/.gym.stamp: $(VENV)/.stamp $(GYM_HOOK)
+	@d=$$($(VENV)/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])') \
+	  && cp $(GYM_HOOK) $$d/_cr_sim_gym_hook.py \
+	  && $(VENV)/bin/python -m py_compile $$d/_cr_sim_gym_hook.py \
+	  && echo 'import _cr_sim_gym_hook; _cr_sim_gym_hook.install_hook()' > $$d/cr_sim_gym.pth
 	@touch $@
 
 # The Foxglove app's MCAP reader for test/test_bag_readers.py (npm, pinned by package-lock.json);

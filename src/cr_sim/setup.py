@@ -29,5 +29,10 @@ setup(
         'console_scripts': [
             'sim = cr_sim.sim_node:main',
         ],
+        # Gymnasium's plugin group (loaded by gymnasium 0.26-0.29; 1.x loads no plugins: the
+        # venv's start-up hook registers CRNav-v0 instead, cr_sim.gym_plugin, docs/gym.md)
+        'gymnasium.envs': [
+            '__root__ = cr_sim.gym_plugin:register_envs',
+        ],
     },
 )

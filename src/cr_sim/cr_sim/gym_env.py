@@ -1,5 +1,10 @@
 """Gymnasium environments around the pure simulator core (no ROS): :class:`CRNavEnv` (one
-robot) and :class:`CRNavVectorEnv` (many robots in one process, ``gymnasium.vector``)."""
+robot) and :class:`CRNavVectorEnv` (many robots in one process, ``gymnasium.vector``).
+
+Both are registered as ``CRNav-v0`` (:mod:`cr_sim.gym_plugin`, docs/gym.md): importing this
+module registers them, and in the project's venv ``gymnasium.make('CRNav-v0')`` and
+``gymnasium.make_vec('CRNav-v0', num_envs=N)`` work without importing it first.
+"""
 
 from __future__ import annotations
 
@@ -15,6 +20,7 @@ import numpy as np
 from cr_sim.core import kernels
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.sim import Observation, SimParams, Simulator, load_sim_params
+from cr_sim.gym_plugin import register_envs
 
 __all__ = ['CRNavEnv', 'CRNavVectorEnv']
 
@@ -310,3 +316,6 @@ class CRNavVectorEnv(VectorEnv):
             obs[stepped] = rows
         np.logical_or(terminations, truncations, out=self._autoreset)
         return obs.copy(), rewards.copy(), terminations.copy(), truncations.copy(), {}
+
+
+register_envs()         # 'CRNav-v0' for gymnasium.make / make_vec (docs/gym.md)
