@@ -26,9 +26,12 @@ Two channels are derived for the layout (only while a client subscribes to them)
   from ``learner/progress``): ``x`` = share of the last ``foxglove.block`` learned episodes
   that reached the destination, ``y`` = learned episodes, ``z`` = 1 if this one reached it.
 
-When a client subscribes to a channel, the last message of its topic is sent again, so that a
-panel opened late shows the arena, the parameters and the current state at once (clients
-already subscribed get that message twice).
+Parameters: ``config/foxglove.yaml`` (section ``foxglove``; ``-p foxglove.KEY:=VALUE``).
+
+A client that subscribes late gets what a late ROS subscriber gets: the last message of each
+transient-local topic (the arena, the parameters, the episode events, the learner's progress)
+and of the derived channels is sent again when it subscribes (clients already subscribed get
+that message twice).
 """
 
 from __future__ import annotations
@@ -40,8 +43,7 @@ import time
 from typing import Any
 
 from clis_modules.graph_node import GraphNode, OnDemand, run_node
-from cr_sim import conversions as rconv
-from cr_sim.core.params import build, ConfigError, dataclass, param
+from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.ros_params import declare_from_config
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
@@ -54,24 +56,23 @@ from rclpy.serialization import deserialize_message, serialize_message
 from clis_learner.core.bag import BagError, message_definition
 from clis_learner.core.config import ClisParams
 from clis_learner.recorder_node import EXCLUDED, GRAPH_TOPICS, LATCHED_TOPICS, message_class
+from cr_sim import conversions as rconv
 
-__all__ = ['FoxgloveParams', 'FoxgloveNode', 'DEFAULTS', 'DEFAULT_PORT', 'HOST', 'PATH_TOPIC',
-           'SUCCESS_TOPIC', 'plan_live_view', 'main']
+__all__ = ['FoxgloveParams', 'FoxgloveNode', 'CONFIG_FILE', 'DEFAULT_PORT', 'HOST', 'PATH_TOPIC',
+           'SUCCESS_TOPIC', 'layout', 'layout_json', 'plan_live_view', 'main']
 
 #: The only interface the WebSocket listens on.
 HOST = '127.0.0.1'
 DEFAULT_PORT = 8765
 PATH_TOPIC = '/foxglove/path'
 SUCCESS_TOPIC = '/foxglove/success'
-#: The node's parameters (``foxglove.KEY``) and their defaults.
-DEFAULTS = {'foxglove': {
-    'port': DEFAULT_PORT, 'topics': '', 'depth': 100, 'poll_period': 0.02,
-    'discovery_period': 1.0, 'path_step': 0.02, 'path_period': 0.1, 'block': 50}}
+#: The node's parameter file (section ``foxglove``).
+CONFIG_FILE = 'foxglove.yaml'
 
 
 @dataclass(frozen=True)
 class FoxgloveParams:
-    """Settings of the live view (``-p foxglove.KEY:=VALUE``; defaults :data:`DEFAULTS`)."""
+    """Settings of the live view (``config/foxglove.yaml``, section ``foxglove``)."""
 
     port: int = param(1, 65535, doc=f'TCP port of the WebSocket on {HOST}')
     topics: str = param(doc="comma-separated topics to serve; '' = every topic of the graph")
@@ -109,10 +110,11 @@ class FoxgloveNode(GraphNode):
 
     def __init__(self) -> None:
         super().__init__('foxglove', clis_cls=ClisParams)
-        import foxglove                     # only here: the rest of the package runs without it
+        import foxglove  # only here: the rest of the package runs without it
 
         self.fox = foxglove
-        values = declare_from_config(self, DEFAULTS)
+        defaults = ros_parameters(config_dir() / CONFIG_FILE, '/**')
+        values = declare_from_config(self, {'foxglove': defaults['foxglove']})
         self.cfg: FoxgloveParams = build(FoxgloveParams, values['foxglove'], where='foxglove')
         self.only = [self.resolve_topic_name(t.strip())
                      for t in self.cfg.topics.split(',') if t.strip()]
@@ -120,6 +122,8 @@ class FoxgloveNode(GraphNode):
         self.channels: dict[str, Any] = {}               # topic -> foxglove.Channel
         self.last: dict[str, tuple[bytes, int]] = {}     # topic -> (payload, log time)
         self.by_id: dict[int, str] = {}                  # channel id -> topic
+        #: topics whose last message a new subscriber gets (transient local; derived)
+        self.latched = {PATH_TOPIC, SUCCESS_TOPIC}
         self.path: deque = deque()
         self.path_frame = ''
         self.path_sent = (0, 0.0)                        # (poses sent, wall time)
@@ -143,7 +147,7 @@ class FoxgloveNode(GraphNode):
         self.create_timer(self.cfg.poll_period, self._poll, clock=steady)
         self.clock_on_demand()                           # no wakeup per /clock message
         self.defer_housekeeping()
-        self.get_logger().info(f'Foxglove live view on ws://{HOST}:{self.server.port()} '
+        self.get_logger().info(f'Foxglove live view on ws://{HOST}:{self.server.port} '
                                '(layout: config/foxglove_layout.json, docs/foxglove.md)')
 
     # ------------------------------------------------------------------ subscriptions
@@ -168,6 +172,8 @@ class FoxgloveNode(GraphNode):
         sub = self.create_subscription(cls, topic, lambda *_: None, qos, raw=True,
                                        callback_group=self._polled)
         self.subs[topic] = (msg_type, sub)
+        if latched:
+            self.latched.add(topic)
 
     def _discover(self) -> None:
         if self.closed:
@@ -201,12 +207,14 @@ class FoxgloveNode(GraphNode):
         chan = self.channel(topic, msg_type)
         if chan is None:
             return
+        log_ns = max(log_ns, self.last.get(topic, (b'', 0))[1])   # never back in time
         self.last[topic] = (data, log_ns)
         chan.log(data, log_time=log_ns)
 
     def _poll(self) -> None:
-        """Forward every message waiting on any subscription, in receive order; then what the
-        derived channels need, and the last message of each newly subscribed channel."""
+        """Forward every message waiting on any subscription, each topic's in the order they
+        were published (not sorted by receive stamps, which are not monotonic within a topic);
+        first the last message of each latched channel that got a subscriber, last the path."""
         if self.closed:
             return
         batch = []
@@ -215,10 +223,13 @@ class FoxgloveNode(GraphNode):
                 with sub.handle:
                     while (got := sub.handle.take_message(sub.msg_type, True)) is not None:
                         batch.append((got[1].get('received_timestamp') or time.time_ns(),
-                                      name, typ, got[0]))
+                                      name, typ, got[0]))   # in the order published
             except InvalidHandle:                        # destroyed meanwhile
                 continue
-        batch.sort(key=lambda b: b[0])
+        for cid in self.listener.take():                 # a late subscriber: as DDS would do
+            topic = self.by_id.get(cid)
+            if topic in self.latched and topic in self.last:
+                self.channels[topic].log(self.last[topic][0], log_time=self.last[topic][1])
         for recv, name, typ, data in batch:
             self.send(name, typ, data, recv)
             if typ == 'nav_msgs/msg/Odometry' and self._wanted(PATH_TOPIC):
@@ -226,10 +237,6 @@ class FoxgloveNode(GraphNode):
             elif typ == 'diagnostic_msgs/msg/DiagnosticArray':
                 self._on_event(name, data, recv)
         self._send_path()
-        for cid in self.listener.take():                 # a client subscribed: latest again
-            topic = self.by_id.get(cid)
-            if topic in self.last:
-                self.channels[topic].log(self.last[topic][0], log_time=self.last[topic][1])
 
     # ------------------------------------------------------------------ derived channels
 
@@ -295,6 +302,84 @@ class FoxgloveNode(GraphNode):
             return
         self.closed = True
         self.server.stop()
+
+
+#: The modules of the default condition (async), in the order of ``arbiter/selection``'s
+#: ``position`` (Pr(i | x)): the plot's labels.
+LAYOUT_MODULES = ('innate', 'view', 'place')
+
+
+def layout() -> Any:
+    """The Foxglove layout of ``config/foxglove_layout.json`` (docs/foxglove.md), built with
+    the ``foxglove.layouts`` model of the SDK: left, the arena with the robot and its path, and
+    the place module's belief grid (3D panels, top view of the ``odom`` frame); right, which
+    module acts, Pr(i | x), the reward and the success rate over sim time."""
+    import foxglove.layouts as fl
+
+    def top_view(topics: dict[str, Any]) -> Any:
+        return fl.ThreeDeeConfig(
+            follow_tf='odom', fixed_frame='odom', follow_mode='follow-none',
+            camera_state=fl.ThreeDeeCameraState(perspective=False, distance=6.0, phi=0.0,
+                                                target=(0.0, 0.0, 0.0),
+                                                target_offset=(0.0, 0.0, 0.0), theta_offset=0.0),
+            topics=topics)
+
+    arena = fl.BaseRendererRosMarkerTopicSettings(visible=True)
+    scene = fl.ThreeDeePanel(title='Arena, robot and its path', config=top_view({
+        '/arena': arena,
+        '/markers': fl.BaseRendererRosMarkerTopicSettings(visible=True),
+        '/odom': fl.BaseRendererPoseTopicSettings(visible=True, type='arrow',
+                                                  arrow_scale=(0.15, 0.03, 0.03),
+                                                  color='#1e5fffff'),
+        PATH_TOPIC: fl.BaseRendererPosesTopicSettings(visible=True, type='line',
+                                                       line_width=0.015,
+                                                       gradient=('#1e5fff40', '#1e5fffff')),
+    }))
+    belief = fl.ThreeDeePanel(title="Place module's belief (most probable cell = 100)",
+                              config=top_view({
+                                  '/place/belief': fl.BaseRendererRosOccupancyGridTopicSettings(
+                                      visible=True, color_mode='map', alpha=0.8,
+                                      frame_locked=True),
+                                  '/arena': arena}))
+
+    def stamped(value: str, label: str) -> Any:
+        return fl.PlotSeries(value=value, label=label, enabled=True,
+                             timestamp_method='headerStamp')
+
+    acting = fl.StateTransitionsPanel(title='Acting module', config=fl.StateTransitionsConfig(
+        paths=[fl.StateTransitionsSeries(value='/arbiter/selection.header.frame_id',
+                                         label='drawn by the arbiter',
+                                         timestamp_method='headerStamp'),
+               fl.StateTransitionsSeries(value='/arbiter/action.header.frame_id',
+                                         label="in cmd_vel ('' = stop)",
+                                         timestamp_method='headerStamp')]))
+    probs = fl.PlotPanel(title='Pr(i | x) at each draw', config=fl.PlotConfig(
+        paths=[stamped(f'/arbiter/selection.position[{k}]', f'Pr({m} | x)')
+               for k, m in enumerate(LAYOUT_MODULES)],
+        min_y_value=0.0, max_y_value=1.0, show_legend=True))
+    reward = fl.PlotPanel(title='Reward', config=fl.PlotConfig(
+        paths=[stamped('/reward.vector.x', 'reward of the tick'),
+               stamped('/reward.vector.y', 'episode return')], show_legend=True))
+    success = fl.PlotPanel(title='Success rate', config=fl.PlotConfig(
+        paths=[stamped(f'{SUCCESS_TOPIC}.vector.x', 'reached, share of the last block'),
+               stamped(f'{SUCCESS_TOPIC}.vector.z', 'reached (this episode)')],
+        min_y_value=0.0, max_y_value=1.0, show_legend=True))
+
+    def split(direction: str, *items: tuple[float, Any]) -> Any:
+        return fl.SplitContainer(direction=direction, items=[
+            fl.SplitItem(proportion=p, content=c) for p, c in items])
+
+    return fl.Layout(content=split(
+        'row',
+        (0.55, split('column', (0.6, scene), (0.4, belief))),
+        (0.45, split('column', (0.2, acting), (0.3, probs), (0.25, reward), (0.25, success)))))
+
+
+def layout_json() -> str:
+    """:func:`layout` as the text of ``config/foxglove_layout.json`` (indented, one newline at
+    the end)."""
+    import json
+    return json.dumps(json.loads(layout().to_json()), indent=2) + '\n'
 
 
 def plan_live_view(plan: Any, args: Any) -> str | None:

@@ -1,0 +1,230 @@
+"""The live view (``clis run --foxglove PORT``, docs/foxglove.md) as the Foxglove app sees it.
+
+A short Async run serves its topics on a Foxglove WebSocket. A client speaking the Foxglove
+WebSocket protocol v1 (``foxglove.websocket.v1``, which foxglove-sdk's server names
+``foxglove.sdk.v1``; the client is the ``websockets`` package, not the SDK that serves)
+subscribes to every channel the server advertises and decodes each message with the advertised
+``ros2msg`` schema (``mcap_ros2``'s decoder, an independent reader). Judged on what arrived:
+every channel has messages that decode, each schema is the bag's text, the sim-time stamps of
+``/clock`` only grow, the derived success rate agrees with the run's ``episodes.csv``, and the
+server listens on 127.0.0.1 only (``/proc/net/tcp*`` of the node's own sockets).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+import socket
+import struct
+import subprocess
+import sys
+import time
+
+from clis_learner.core.bag import message_definition
+from clis_learner.foxglove_node import PATH_TOPIC, SUCCESS_TOPIC, layout_json
+from mcap.records import Schema
+from mcap_ros2.decoder import DecoderFactory
+import pytest
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+pytestmark = pytest.mark.ros
+
+#: The protocol ``foxglove.websocket.v1`` under the name foxglove-sdk's server negotiates
+#: (the same messages; the SDK refuses a client that offers only the old name, with HTTP 400).
+#: The client offers both names, as the Foxglove app does.
+SUBPROTOCOL = 'foxglove.sdk.v1'
+OFFERED = [SUBPROTOCOL, 'foxglove.websocket.v1']
+#: Topics the layout shows: each must be advertised and delivered during the run.
+EXPECTED = {'/clock', '/odom', '/arena', '/markers', '/reward', '/episode', '/cmd_vel',
+            '/arbiter/selection', '/arbiter/action', '/place/belief', '/learner/progress',
+            PATH_TOPIC, SUCCESS_TOPIC}
+LISTEN = '0A'                                   # TCP_LISTEN in /proc/net/tcp
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def listening(pid: int, port: int) -> list[str]:
+    """The local addresses (hex, as /proc/net/tcp* write them) of every listening TCP socket
+    of process ``pid``, and of any process's listening socket on ``port``."""
+    inodes = set()
+    for fd in Path(f'/proc/{pid}/fd').iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith('socket:['):
+            inodes.add(target[len('socket:['):-1])
+    out = []
+    for table in ('/proc/net/tcp', '/proc/net/tcp6'):
+        for line in Path(table).read_text().splitlines()[1:]:
+            f = line.split()
+            local, state, inode = f[1], f[3], f[9]
+            if state == LISTEN and (inode in inodes or int(local.split(':')[1], 16) == port):
+                out.append(local)
+    return out
+
+
+def logs(out: Path) -> str:
+    return '\n'.join(f'--- {log.name}:\n' + log.read_text(errors='replace')[-2000:]
+                     for log in sorted((out / 'logs').glob('*.log')))
+
+
+def node_pid(parent: int) -> int:
+    out = subprocess.run(['pgrep', '-P', str(parent), '-f', '/lib/clis_learner/foxglove( |$)'],
+                         capture_output=True, text=True).stdout.split()
+    assert len(out) == 1, out
+    return int(out[0])
+
+
+@pytest.fixture(scope='module')
+def live(tmp_path_factory):
+    """A 2-episode run with the live view, watched from its start to its end."""
+    out = tmp_path_factory.mktemp('foxglove') / 'run'
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', 'run', '--out', str(out),
+                             '--quiet', '--condition', 'async', '--episodes', '2', '--seed', '1',
+                             '--foxglove', str(port)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    seen = {'channels': {}, 'messages': {}, 'listen': None, 'protocol': None, 'info': None}
+    try:
+        ws = None
+        deadline = time.monotonic() + 60
+        while ws is None:
+            try:
+                ws = connect(f'ws://127.0.0.1:{port}', subprotocols=OFFERED,
+                             open_timeout=2, max_size=None)
+            except OSError as exc:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    proc.kill()
+                    pytest.fail(f'no live view on port {port} ({exc}):\n'
+                                f'{proc.communicate()[0]}\n{logs(out)}')
+                time.sleep(0.2)
+        seen['protocol'] = ws.subprotocol
+        seen['listen'] = listening(node_pid(proc.pid), port)
+        subs = {}                                            # subscription id -> channel id
+        with ws:
+            while True:
+                try:
+                    frame = ws.recv(timeout=120)
+                except (ConnectionClosed, TimeoutError):
+                    break
+                if isinstance(frame, str):
+                    msg = json.loads(frame)
+                    if msg['op'] == 'serverInfo':
+                        seen['info'] = msg
+                    elif msg['op'] == 'advertise':
+                        new = []
+                        for ch in msg['channels']:
+                            seen['channels'][ch['id']] = ch
+                            subs[len(subs) + 1] = ch['id']
+                            new.append({'id': len(subs), 'channelId': ch['id']})
+                        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': new}))
+                elif frame[0] == 0x01:                       # message data
+                    sub, log_ns = struct.unpack_from('<IQ', frame, 1)
+                    seen['messages'].setdefault(subs[sub], []).append((log_ns, frame[13:]))
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        text = proc.communicate()[0]
+    seen.update(code=code, text=text, out=out, port=port)
+    return seen
+
+
+def decoded(live: dict) -> dict[str, list]:
+    """Every message received, decoded with its channel's advertised schema: topic -> msgs."""
+    factory = DecoderFactory()
+    out = {}
+    for cid, msgs in live['messages'].items():
+        ch = live['channels'][cid]
+        assert ch['encoding'] == 'cdr' and ch['schemaEncoding'] == 'ros2msg', ch
+        decode = factory.decoder_for('cdr', Schema(id=cid, name=ch['schemaName'],
+                                                   encoding='ros2msg',
+                                                   data=ch['schema'].encode()))
+        out[ch['topic']] = [decode(data) for _, data in msgs]
+    return out
+
+
+def test_every_advertised_channel_decodes_with_its_schema(live):
+    assert live['code'] == 0, live['text']
+    print('messages per channel:', {ch['topic']: len(live['messages'].get(c, []))
+                                    for c, ch in sorted(live['channels'].items())})
+    assert live['protocol'] == SUBPROTOCOL
+    topics = {ch['topic'] for ch in live['channels'].values()}
+    assert EXPECTED <= topics, EXPECTED - topics
+    silent = [live['channels'][c]['topic'] for c in live['channels']
+              if not live['messages'].get(c)]
+    assert not silent, f'advertised but nothing arrived: {silent}'
+    msgs = decoded(live)
+    for ch in live['channels'].values():                 # the bags' schema, byte for byte
+        assert ch['schema'] == message_definition(ch['schemaName']), ch['topic']
+    # sim time: /clock only moves forward and covers the two episodes
+    clock = [m.clock.sec + 1e-9 * m.clock.nanosec for m in msgs['/clock']]
+    back = [(a, b) for a, b in zip(clock, clock[1:]) if b <= a]
+    assert not back, back[:5]
+    assert all(m.header.frame_id == 'odom' for m in msgs['/odom'])
+    assert {m.header.frame_id for m in msgs['/arbiter/selection']} <= {'innate', 'view',
+                                                                        'place'}
+    for m in msgs['/arbiter/selection']:
+        assert abs(sum(m.position) - 1.0) < 1e-9
+    assert msgs['/arena'][-1].markers, 'the arena has markers'
+
+
+def test_derived_success_rate_and_path_agree_with_the_run(live):
+    assert live['code'] == 0, live['text']
+    msgs = decoded(live)
+    with open(live['out'] / 'episodes.csv', newline='') as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 2
+    last = msgs[SUCCESS_TOPIC][-1].vector
+    assert last.y == len(rows)
+    assert last.x == pytest.approx(sum(float(r['reached']) for r in rows) / len(rows))
+    assert last.z == float(rows[-1]['reached'])
+    path = msgs[PATH_TOPIC][-1]
+    assert path.header.frame_id == 'odom' and len(path.poses) >= 2
+    step = [((b.pose.position.x - a.pose.position.x) ** 2
+             + (b.pose.position.y - a.pose.position.y) ** 2) ** 0.5
+            for a, b in zip(path.poses, path.poses[1:])]
+    assert min(step) >= 0.02 - 1e-9                      # foxglove.path_step
+    odom = {(m.header.stamp.sec, m.header.stamp.nanosec): m.pose.pose.position
+            for m in msgs['/odom']}
+    end = path.poses[-1]
+    key = (end.header.stamp.sec, end.header.stamp.nanosec)
+    if key in odom:                                      # an odom message the client got too
+        assert (odom[key].x, odom[key].y) == (end.pose.position.x, end.pose.position.y)
+
+
+def test_the_server_listens_on_loopback_only(live):
+    assert live['info']['name'] == 'clis'
+    addresses = live['listen']
+    assert any(int(a.split(':')[1], 16) == live['port'] for a in addresses), addresses
+    loopback = {'0100007F', '00000000000000000000000001000000'}
+    assert all(a.split(':')[0] in loopback for a in addresses), addresses
+
+
+def test_the_shipped_layout_is_the_models_and_shows_served_topics(repo):
+    text = (repo / 'config' / 'foxglove_layout.json').read_text()
+    assert text == layout_json(), 'regenerate: python -c "from clis_learner.foxglove_node ' \
+                                  'import layout_json; print(layout_json(), end=\'\')"'
+    shown = set()
+
+    def walk(node):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if k == 'topics' and isinstance(v, dict):
+                    shown.update(v)
+                elif k == 'value' and isinstance(v, str):
+                    shown.add(v.split('.')[0])
+                walk(v)
+        elif isinstance(node, list):
+            for v in node:
+                walk(v)
+    walk(json.loads(text))
+    assert shown and shown <= EXPECTED, shown - EXPECTED
