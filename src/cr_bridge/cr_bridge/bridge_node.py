@@ -2,7 +2,7 @@
 
 Talks to the robot (or to ``cr_bridge emulator``) over the wire protocol of
 ``src/cr_bridge/PROTOCOL.md`` (``node.device``: UDP on the loopback, a serial line, a pty) and
-publishes exactly the interface of ``cr_sim sim`` (the README's topic table; message layouts
+publishes exactly the interface of ``cr_sim sim`` (docs/robot.md#topics; message layouts
 from :mod:`cr_sim.conversions`): ``ir``, ``camera``, ``wheels``, ``reward``, ``episode``,
 ``odom``, ``arena``, ``markers``, ``/clock``; takes ``cmd_vel``; offers ``reset``. Plus
 ``diagnostics`` (diagnostic_msgs/DiagnosticArray): the link state and the safety counters.

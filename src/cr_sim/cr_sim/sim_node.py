@@ -1,6 +1,6 @@
 """``ros2 run cr_sim sim``: the Cyber Rodent simulator as a ROS 2 node.
 
-Publishes the robot interface (see :mod:`cr_sim.conversions` and the README's topic table),
+Publishes the robot interface (see :mod:`cr_sim.conversions` and the topic table of docs/robot.md),
 ground-truth ``odom``, ``markers`` and ``/clock``; subscribes to ``cmd_vel``; offers the
 ``reset`` service (std_srvs/Trigger). The core (:class:`cr_sim.core.sim.Simulator`) steps at
 ``episode.dt`` of sim time; the node paces it at ``node.speed_factor`` times real time
