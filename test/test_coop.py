@@ -22,6 +22,7 @@ from clis_learner.core.updates import (
 )
 from clis_learner.experiment import ablation_conditions
 from clis_modules.core.arbiter import selection_probs
+from cr_sim.core.params import config_dir
 import numpy as np
 import pytest
 
@@ -223,9 +224,37 @@ def test_periodic_evaluation_leaves_learning_unchanged(tmp_path):
 
 
 def test_thesis_solo_evaluation_and_improved_episode(tmp_path):
-    res = run_job(_spec(tmp_path, 'async', 4, preset_overrides('improved')))
+    import dataclasses
+
+    from clis_learner.core.runner import Agent, evaluate
+    import yaml
+    # starts 0.3 m from the destination, facing it: the solo episodes reach it (or not)
+    # depending on the weights, so the successes and durations tell the weights apart
+    near = yaml.safe_load((config_dir() / 'arena.yaml').read_text())
+    near['starts'] = {k: {'x': 0.3 * math.cos(a), 'y': 0.3 * math.sin(a),
+                          'heading_deg': math.degrees(a) - 180.0}
+                      for k, a in zip('ABCDE', (0.5, 1.8, 3.0, 4.2, 5.5))}
+    (tmp_path / 'near.yaml').write_text(yaml.safe_dump(near))
+    spec = dataclasses.replace(_spec(tmp_path, 'async', 4, preset_overrides('improved')),
+                               arena=str(tmp_path / 'near.yaml'))
+    res = run_job(spec)
     assert set(res.solo) == {'view', 'place'}
-    assert all(s['n'] == 5 and 0 <= s['reached'] <= 5 for s in res.solo.values())
+    # each learned module alone, recomputed here from the run's final weights (its checkpoint)
+    # with the evaluation draws of the last point: the same successes and mean duration
+    params, sim_params, arena = spec.load()
+    saved = np.load(spec.result_path().with_suffix('.npz'))
+    for name, got in res.solo.items():
+        solo = Agent(params, name, arena, np.random.default_rng(0),
+                     sim_params.robot.wheel_base)
+        m = solo.modules[0]
+        m.w, m.W, m.sigma = (saved[f'{name}.{k}'] for k in ('w', 'W', 'sigma'))
+        rows = evaluate(solo, arena, sim_params, spec.seed, spec.episodes, spec.eval_episodes)
+        assert got['n'] == len(rows) == 5
+        assert got['reached'] == sum(r['reached'] for r in rows), name
+        assert got['duration'] == pytest.approx(np.mean([r['duration'] for r in rows]),
+                                                abs=1e-12), name
+    assert any(0 < s['reached'] for s in res.solo.values()), res.solo
+    assert any(s['duration'] < 8.0 for s in res.solo.values()), res.solo
     for name in ('innate', 'view', 'place'):
         assert all(math.isfinite(r[f'v_{name}']) for r in res.episodes)
         assert all(r[f'c_median_{name}'] <= 1.0 for r in res.episodes)   # truncated weights
