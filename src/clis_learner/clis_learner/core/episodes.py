@@ -26,7 +26,7 @@ __all__ = ['ROW_DIAGNOSTICS', 'acting_shares', 'episode_row']
 
 #: Per-module diagnostics of the learner copied into each episode row.
 ROW_DIAGNOSTICS = ('c_final', 'c_median', 'ess', 'rho_mean', 'delta_abs_mean', 'grad_norm',
-                   'n_steps')
+                   'n_steps', 'c_max', 'grow_share')
 
 
 def acting_shares(memory: EpisodeMemory) -> np.ndarray:
