@@ -50,7 +50,10 @@ def events(probe) -> list[tuple[float, str, dict]]:
 @pytest.fixture(scope='module', params=['sim', 'bridge'])
 def robot(request):
     p = Probe(f'contract_{request.param}')
-    r = Robot(request.param, SPEED, '-p', f'episode.time_limit:={TIME_LIMIT}')
+    # the bridge's link timeout is wall time: a host loaded for a moment (an emulator not
+    # scheduled for 0.5 s) must not end an episode here (link loss: test_bridge_node)
+    extra = ('-p', 'node.link_timeout:=30.0') if request.param == 'bridge' else ()
+    r = Robot(request.param, SPEED, '-p', f'episode.time_limit:={TIME_LIMIT}', *extra)
     p.listen(MarkerArray, 'arena', latched=True)
     p.listen(DiagnosticArray, 'episode', latched=True, depth=100)
     for topic, msg_type in STREAMS.items():
@@ -90,23 +93,41 @@ def heading_controller(p, reverse_away: bool = False):
 
 
 def test_reaching_the_destination_gives_plus_one_and_ends_the_episode(robot):
-    """Episode 1 starts at A (the simulator's start; the emulator's robot stands there)."""
+    """Episode 1 starts at A (the simulator's start; the emulator's robot stands there).
+
+    The controller steers by each new camera reading; an episode lasts ``TIME_LIMIT`` of
+    clock (4 s wall here) and on a loaded machine the Python controller may not get there
+    in one: then it tries the next episode (a hang guard of 8, not a window)."""
     _, p = robot
-    t0, event, values = events(p)[-1]
+    _, event, values = events(p)[0]
     assert (event, values['episode']) == ('start', '1'), events(p)
 
     def reached() -> bool:
         return any(e == 'reached' for _, e, _ in events(p))
 
-    deadline = time.monotonic() + 30.0
-    while not reached() and time.monotonic() < deadline:
-        v, w = heading_controller(p)
-        drive(p, v, w, 0.05)
-    assert reached(), 'the destination was not reached'
+    def running() -> bool:
+        return events(p)[-1][1] == 'start'
+
+    for _ in range(8):
+        assert p.spin_until(running, TIME_LIMIT / SPEED * 4 + 30), events(p)[-3:]
+        seen = len(p.msgs['camera'])
+        while running() and not reached():
+            if len(p.msgs['camera']) > seen:             # a new reading: a new decision
+                seen = len(p.msgs['camera'])
+                v, w = heading_controller(p)
+                msg = TwistStamped()
+                msg.twist.linear.x, msg.twist.angular.z = v, w
+                p.pub.publish(msg)
+            p.spin_once()
+        if reached():
+            break
+    assert reached(), 'the destination was not reached in 8 episodes'
     t_end, _, values = next(e for e in events(p) if e[1] == 'reached')
-    assert int(values['episode']) == 1
-    p.spin_for(0.3)
-    rewards = _episode_rewards(p, 1)
+    ep = int(values['episode'])
+    # the end event and the rewards travel on two topics: wait for the episode's last reward
+    assert p.spin_until(lambda: any(t >= t_end - 1e-6 for t, _, _ in _episode_rewards(p, ep)),
+                        60)
+    rewards = _episode_rewards(p, ep)
     goal = [(t, r) for t, r, _ in rewards if r >= 1.0 - 0.11]
     assert len(goal) == 1 and goal[0][0] == pytest.approx(t_end, abs=1e-6)
     assert goal[0][1] in (pytest.approx(1.0), pytest.approx(0.9)), 'reward_goal (+ a contact)'
@@ -116,7 +137,7 @@ def test_reaching_the_destination_gives_plus_one_and_ends_the_episode(robot):
     # the next episode starts after the end (the sim at its start, the bridge after a wander)
     assert p.spin_until(lambda: events(p)[-1][1] == 'start', 20), events(p)[-3:]
     t_next, _, v2 = events(p)[-1]
-    assert int(v2['episode']) == 2 and t_next > t_end
+    assert int(v2['episode']) == ep + 1 and t_next > t_end
 
 
 def test_topics_types_frames_and_rates(robot):
@@ -200,24 +221,36 @@ def test_an_idle_episode_times_out_with_one_reward_per_tick(robot):
                         TIME_LIMIT / SPEED * 4 + 10), 'a fresh episode'
     t0, event, values = events(p)[-1]
     ep = int(values['episode'])
-    assert p.spin_until(lambda: events(p)[-1][1] == 'timeout', TIME_LIMIT / SPEED * 4 + 10)
+    assert p.spin_until(lambda: events(p)[-1][1] == 'timeout', TIME_LIMIT / SPEED * 4 + 60)
     t_end, _, v = events(p)[-1]
     assert int(v['episode']) == ep
     assert t_end - t0 == pytest.approx(TIME_LIMIT, abs=1e-3)
     assert float(v['duration']) == pytest.approx(TIME_LIMIT, abs=1e-3)
-    # the end event and the rewards travel on two topics: wait for the episode's last reward
-    # (a loaded machine delivers it later than the event), then a little for stragglers
-    p.spin_until(lambda: any(t >= t_end - 1e-6 for t, _, _ in _episode_rewards(p, ep)), 10)
-    p.spin_for(0.2)
-    rewards = _episode_rewards(p, ep)
-    stamps = [t for t, _, _ in rewards]
+    # the rewards travel on their own topic: once the next episode has started, those of this
+    # one have all been published; the probe (~1,400 msg/s, a reader that lags can lose some)
+    # is judged on what it got: the publisher's sequence numbers count what was published
+    assert p.spin_until(lambda: int(events(p)[-1][2]['episode']) > ep, TIME_LIMIT / SPEED * 4
+                        + 60), events(p)[-3:]
+    p.drain(quiet=0.5, timeout=30)
+    got = [(stamp(m), m.vector.x, q) for m, q in zip(p.msgs['reward'], p.seqs['reward'])
+           if int(m.vector.z) == ep]
+    assert len(got) > 10, got
+    rewards = [(t, r, 0.0) for t, r, _ in got]
+    stamps = [t for t, _, _ in got]
     n = round(TIME_LIMIT / TICK)
-    if robot[0].kind == 'sim':
-        assert len(rewards) == n, 'one reward per tick'
-    else:   # one per frame received: a frame lost on the line (counted) has none
-        assert n * 0.98 <= len(rewards) <= n, 'one reward per tick'
-    assert len(set(stamps)) == len(stamps)
-    assert stamps[0] == pytest.approx(t0 + TICK, abs=1e-6) and stamps[-1] == pytest.approx(t_end)
+    ks = [round((t - t0) / TICK) for t in stamps]
+    # on the tick grid of the episode (t0 + k TICK, k = 1..n), in order, none twice
+    assert all(abs(t - t0 - k * TICK) < 1e-6 for t, k in zip(stamps, ks)), stamps[:5]
+    assert ks == sorted(set(ks)) and 1 <= ks[0] and ks[-1] <= n, ks
+    published = [(k, q) for k, (_, _, q) in zip(ks, got)]
+    for (ka, qa), (kb, qb) in zip(published, published[1:]):
+        if robot[0].kind == 'sim':      # one reward per tick, nothing else
+            assert qb - qa == kb - ka, ((ka, qa), (kb, qb))
+        else:   # one per frame received: a frame lost on the line (counted) has none
+            assert 0 < qb - qa <= kb - ka, ((ka, qa), (kb, qb))
+    if ks[0] == 1 and ks[-1] == n:      # the probe got the first and the last one
+        count = published[-1][1] - published[0][1] + 1
+        assert count == n if robot[0].kind == 'sim' else n * 0.98 <= count <= n, count
     assert all(r == 0.0 for _, r, _ in rewards), 'standing still collides with nothing'
 
 
