@@ -551,6 +551,10 @@ def _check_args(args: argparse.Namespace) -> str | None:
             flat = check_params_file(f)
         except (ConfigError, OSError) as exc:
             return f'--params {f}: {_strip(exc, f)}'
+        try:
+            _check_param_values(flat, args.robot)
+        except (ConfigError, ValueError) as exc:
+            return f'--params {f}: {exc}'
         clis_keys.update(flat)
     args.first_episode = 1
     if args.resume is None:
@@ -566,8 +570,9 @@ def _check_args(args: argparse.Namespace) -> str | None:
                                                          *arena_map(arena)),
                                params_hash(clis))
     except CheckpointError as exc:
-        return f'--resume {args.resume}: {_strip(exc, args.resume)} (the learner of ' \
-               f'--condition {args.condition} with these parameters cannot start from it)'
+        return f'--resume {args.resume}: {_strip(exc, args.resume)}' + (
+            f' (the learner of --condition {args.condition} with these parameters cannot '
+            'start from it)' if args.resume.is_file() else '')
     extra = meta.get('extra', {})
     for key in ('condition', 'seed'):
         if key in extra and extra[key] != getattr(args, key):
@@ -575,6 +580,56 @@ def _check_args(args: argparse.Namespace) -> str | None:
                    f'{getattr(args, key)}'
     args.first_episode = int(extra.get('episode', 0)) + 1
     return None
+
+
+def _check_param_values(flat: dict[str, Any], robot: str) -> None:
+    """The values of a ``--params`` file for the nodes' own sections (``config/graph.yaml``,
+    the robot interface's ``node`` and sections of ``sim.yaml`` / ``bridge.yaml``), checked as
+    each node will (the CLIS keys are checked by the config loader): ConfigError naming the
+    key and its range."""
+    from clis_modules.arbiter_node import ArbiterNodeParams
+    from clis_modules.graph_node import GraphParams
+    from clis_modules.module_node import ModuleNodeParams
+    from cr_bridge.bridge_node import BridgeNodeParams
+    from cr_bridge.core.episode import ContactParams
+    from cr_sim.core.params import (
+        ConfigError,
+        build,
+        config_dir,
+        flatten,
+        ros_parameters,
+        unflatten,
+    )
+    from cr_sim.core.sim import IGNORED_SECTIONS, load_sim_params
+    from cr_sim.sim_node import SimNodeParams
+
+    from clis_learner.learner_node import LearnerNodeParams
+    from clis_learner.recorder_node import RecorderParams
+    files = {'graph.yaml': ('/**', {'graph': GraphParams, 'module': ModuleNodeParams,
+                                    'arbiter_node': ArbiterNodeParams,
+                                    'learner_node': LearnerNodeParams,
+                                    'recorder': RecorderParams})}
+    if robot == 'bridge':
+        files['bridge.yaml'] = ('bridge', {'node': BridgeNodeParams, 'contact': ContactParams})
+    else:
+        files['sim.yaml'] = ('sim', {'node': SimNodeParams})
+    for name, (node, sections) in files.items():
+        data = ros_parameters(config_dir() / name, node)
+        for section, cls in sections.items():
+            values = flatten(data[section])
+            given = {k[len(section) + 1:]: v for k, v in flat.items()
+                     if k.startswith(section + '.') and k[len(section) + 1:] in values}
+            if given:
+                build(cls, unflatten({**values, **given}), where=section)
+    sim = flatten({k: v for k, v in ros_parameters(config_dir() / 'sim.yaml', 'sim').items()
+                   if k not in IGNORED_SECTIONS})
+    given = {k: v for k, v in flat.items() if k in sim}
+    if given:
+        try:
+            load_sim_params(overrides=given)
+        except ConfigError as exc:
+            raise ConfigError(_strip(exc, config_dir() / 'sim.yaml').removeprefix('sim.')) \
+                from None
 
 
 def _clis_keys() -> set[str]:
@@ -632,7 +687,8 @@ def _keep_rows_until(path: Path, episode: int) -> int:
 
 def main(args: argparse.Namespace) -> int:
     error = _check_args(args)
-    if error:
+    if error:                                     # one line (a YAML error spans several)
+        error = ' '.join(s.strip() for s in error.splitlines() if s.strip())
         print(f'clis run: {error}', file=sys.stderr)
         return EXIT_CONFIG
     if args.out is None:
