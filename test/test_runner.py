@@ -40,16 +40,32 @@ def test_same_seed_same_episodes_bit_for_bit():
 
 
 def test_episode_rows_are_consistent():
+    """Each row against what can be computed by hand from its other fields: one module acts
+    the whole episode (selection per episode), on-policy for itself (rho = c = 1) and not for
+    the others, the start probabilities are (3) of the start values, the return is the sum
+    of the rewards counted, the duration is the time limit unless the goal was reached."""
+    params = load_clis_params()
+    names = ('innate', 'view', 'place')
+    agent = Agent(params, 'async', load_arena(), np.random.default_rng(0), WHEEL_BASE)
+    gammas = np.asarray(agent.gammas, dtype=np.float64)
+    beta = params.common.beta
+    sim = load_sim_params()
     rows = rollout('async', 0, 3)
     for row in rows:
-        shares = [row[f'share_{m}'] for m in ('innate', 'view', 'place')]
-        assert sum(shares) == pytest.approx(1.0)
-        probs = [row[f'p_{m}'] for m in ('innate', 'view', 'place')]
-        assert sum(probs) == pytest.approx(1.0)
-        assert 0 < row['duration'] <= 60.0 + 1e-9
-        assert row['reached'] in (0, 1)
-        # the acting module is on-policy for itself: its importance product is exactly 1
-        assert row[f'c_final_{row["behaviour"]}'] == 1.0 or row['share_' + row['behaviour']] < 1
+        b = row['behaviour']
+        assert [row[f'share_{m}'] for m in names] == [float(m == b) for m in names], row
+        assert row[f'c_final_{b}'] == 1.0 and row[f'rho_mean_{b}'] == 1.0
+        assert all(row[f'rho_mean_{m}'] != 1.0 for m in names if m != b)
+        z = beta * (1.0 - gammas) * np.array([row[f'v_{m}'] for m in names])
+        p = np.exp(z - z.max())
+        assert [row[f'p_{m}'] for m in names] == pytest.approx(list(p / p.sum()), rel=1e-9)
+        assert row['ret'] == pytest.approx(sim.episode.reward_collision * row['collisions']
+                                           + sim.episode.reward_goal * row['reached'])
+        if row['reached']:
+            assert 0 < row['duration'] < sim.episode.time_limit
+        else:
+            assert row['duration'] == pytest.approx(sim.episode.time_limit)
+    assert {row['reached'] for row in rows} == {0, 1}, 'the rows show both outcomes'
 
 
 def test_sync_puts_every_module_on_the_slowest_period():
