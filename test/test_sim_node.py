@@ -5,12 +5,13 @@ from __future__ import annotations
 import math
 
 from cr_sim.core.arena import load_arena
+from cr_sim.core.params import config_dir, ros_parameters
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 import numpy as np
 import pytest
-from ros_util import Probe, assert_rate, start_node, stop
+from ros_util import Probe, assert_grid, start_node, stop
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, LaserScan
 from visualization_msgs.msg import MarkerArray
@@ -61,16 +62,17 @@ def test_sim_node_publishes_interface_at_declared_rates_and_obeys_cmd_vel(probe)
         assert probe.spin_until(lambda: len(probe.msgs['/clock']) > 5, 30), stop(proc)
         for topic in RATES:
             probe.msgs[topic].clear()
-        probe.spin_for(2.0)
+            probe.seqs[topic].clear()
+        # a bounded stream: 100 clock ticks (what arrived is judged, not how fast)
+        assert probe.spin_until(lambda: all(len(probe.msgs[t]) >= (50 if t == 'markers' else 100)
+                                            for t in RATES), 120), \
+            {t: len(probe.msgs[t]) for t in RATES}
         clock = [stamp(m) for m in probe.msgs['/clock']]
-        assert len(clock) > 50
         assert all(b > a for a, b in zip(clock, clock[1:])), 'clock must increase'
-        span = clock[-1] - clock[0]
-        assert span > 0.5 * SPEED * 2.0, f'sim ran {span:.1f} s in 2 s wall at x{SPEED}'
         for topic, rate in RATES.items():
             stamps = [stamp(m.markers[0]) if topic == 'markers' else stamp(m)
                       for m in probe.msgs[topic]]
-            assert_rate(stamps, rate, topic)
+            assert_grid(stamps, probe.seqs[topic], 1.0 / rate, topic)
         scan = probe.msgs['ir'][-1]
         assert len(scan.ranges) == 7 and 0 <= min(scan.ranges) <= scan.range_max
         cam = probe.msgs['camera'][-1]
@@ -91,9 +93,9 @@ def test_sim_node_publishes_interface_at_declared_rates_and_obeys_cmd_vel(probe)
             for _ in range(int(seconds / 0.05)):
                 pub.publish(msg)
                 probe.spin_for(0.05)
-            fresh = probe.msgs['odom'][n0:]
-            assert len(fresh) > 10 * seconds, 'the sim must keep publishing while driven'
-            return pose_of(fresh[-1])
+            assert probe.spin_until(lambda: len(probe.msgs['odom']) > n0 + 1, 60), \
+                'the sim must keep publishing while driven'
+            return pose_of(probe.msgs['odom'][-1])
 
         p0 = pose_of(probe.msgs['odom'][-1])
         n = len(probe.msgs['odom'])
@@ -107,19 +109,56 @@ def test_sim_node_publishes_interface_at_declared_rates_and_obeys_cmd_vel(probe)
         assert moved > 0.3, f'moved {moved:.2f} m'
         speeds = [m.twist.twist.linear.x for m in probe.msgs['odom'][n:]]
         assert max(speeds) == pytest.approx(0.05, rel=0.05), 'driven at the commanded speed'
-        drive(0.0, 0.5)
-        p2 = pose_of(probe.msgs['odom'][-1])
-        p3 = drive(float('nan'), 1.0)
-        assert np.allclose(p2, p3, atol=1e-9), 'a NaN command must not move the robot'
+        # the probe may lag the sim by seconds of sim time on a loaded host: judge the poses
+        # of every reading from the first still one on, never the latest one at a wall instant
+        def still() -> bool:
+            a, b = probe.msgs['odom'][-2:]
+            return np.allclose(pose_of(a)[:2], pose_of(b)[:2], atol=1e-9)
+
+        def publish_until(v: float, done, steps: int = 400) -> None:
+            msg = TwistStamped()
+            msg.twist.linear.x = v
+            for _ in range(steps):              # a hang guard, not a window
+                pub.publish(msg)
+                probe.spin_for(0.02)
+                if done():
+                    return
+            pytest.fail(f'cmd_vel {v}: not done after {steps} commands')
+
+        publish_until(0.0, still)
         n = len(probe.msgs['odom'])
-        drive(50.0, 0.3)  # far over the 1.3 m/s wheel limit
-        speeds = [abs(m.twist.twist.linear.x) for m in probe.msgs['odom'][n:]]
-        assert speeds and max(speeds) <= 1.3 + 1e-9, f'body speed {max(speeds)} over the limit'
-        # watchdog: commands stop -> the robot stops
-        probe.spin_for(1.0)
-        p5 = pose_of(probe.msgs['odom'][-1])
-        probe.spin_for(0.5)
-        assert np.allclose(p5[:2], pose_of(probe.msgs['odom'][-1])[:2], atol=1e-9)
+        p2 = pose_of(probe.msgs['odom'][-1])
+        # NaN commands all the while 200 readings arrive (10 s of sim time): none moves it
+        publish_until(float('nan'), lambda: len(probe.msgs['odom']) >= n + 200, 4000)
+        assert all(np.allclose(p2, pose_of(m), atol=1e-9) for m in probe.msgs['odom'][n:]), \
+            'a NaN command must not move the robot'
+        n = len(probe.msgs['odom'])
+        # far over the 1.3 m/s wheel limit, turning in place (driving on, the robot would reach
+        # the destination: the episode ends and, auto_reset off, no more odom): the wheels
+        # are clipped to +-1.3 m/s, so the body turns at 2 x 1.3 / wheel_base at most
+        base = ros_parameters(config_dir() / 'sim.yaml', 'sim')['robot']['wheel_base']
+        w_max = 2 * 1.3 / base
+        msg = TwistStamped()
+        msg.twist.angular.z = 100.0
+        for _ in range(400):                        # a hang guard, not a window
+            pub.publish(msg)
+            probe.spin_for(0.02)
+            if any(abs(m.twist.twist.angular.z) > 0.5 * w_max for m in probe.msgs['odom'][n:]):
+                break
+        turns = [abs(m.twist.twist.angular.z) for m in probe.msgs['odom'][n:]]
+        assert max(turns) > 0.5 * w_max, 'the turn command was not executed'
+        assert max(turns) <= w_max + 1e-9, f'yaw rate {max(turns)} over the wheel limit'
+        assert all(abs(m.twist.twist.linear.x) < 1e-9 for m in probe.msgs['odom'][n:])
+        # watchdog: commands stop -> the robot stops (2 s of sim time later), and stays as it
+        # is over the next 40 readings
+        def still_pose() -> bool:
+            a, b = probe.msgs['odom'][-2:]
+            return np.allclose(pose_of(a), pose_of(b), atol=1e-9)
+        assert probe.spin_until(still_pose, 60)
+        n = len(probe.msgs['odom'])
+        assert probe.spin_until(lambda: len(probe.msgs['odom']) >= n + 40, 60)
+        p5 = pose_of(probe.msgs['odom'][n - 1])
+        assert all(np.allclose(p5, pose_of(m), atol=1e-9) for m in probe.msgs['odom'][n:])
     finally:
         out = stop(proc)
     assert 'Traceback' not in out, out
