@@ -89,7 +89,8 @@ def children(pid: int) -> dict[str, int]:
 
 
 def measure(seconds: float, single: bool, executor: str = 'lean',
-            cpus: str = '', params: str = '', speed: float = 0.0, realtime: int = 0) -> dict:
+            cpus: str = '', params: str = '', speed: float = 0.0, realtime: int = 0,
+            foxglove: int = 0) -> dict:
     from geometry_msgs.msg import TwistStamped
     import rclpy
     from rosgraph_msgs.msg import Clock
@@ -104,6 +105,8 @@ def measure(seconds: float, single: bool, executor: str = 'lean',
         cmd += ['--speed', str(speed)]
     if realtime:
         cmd += ['--realtime', str(realtime)]
+    if foxglove:                                   # the live view (bench/foxglove_client.py)
+        cmd += ['--foxglove', str(foxglove)]
     # the simulator logs the round trip of every held instant (readings out -> cmd_vel in)
     rtt_log = out / 'round_trips.txt'
     bench_params = out / 'bench.yaml'
@@ -275,13 +278,16 @@ def main() -> int:
                     help='pin the graph to these cores (taskset -c LIST)')
     ap.add_argument('--params', default='', metavar='FILE',
                     help='a parameter file for clis run --params (with --cpu-only)')
+    ap.add_argument('--foxglove', type=int, default=0, metavar='PORT',
+                    help='clis run --foxglove PORT: with the live view (0 = without)')
     ap.add_argument('--realtime', type=int, default=10, metavar='PRIO',
                     help='also measure the round trip with clis run --realtime PRIO (the '
                          'sensor-to-command path under SCHED_FIFO; 0 = not)')
     args = ap.parse_args()
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
-    multi = measure(args.seconds, single=False, cpus=args.cpus, params=args.params)
+    multi = measure(args.seconds, single=False, cpus=args.cpus, params=args.params,
+                    foxglove=args.foxglove)
     if args.cpu_only:
         print(f'processes (cores {multi["cpus"]}, load {multi["load_avg_1min"]:.1f}): '
               f'{cpu_line(multi)}; real-time factor {multi["rtf"]:.1f}x; '

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Mapping
-import threading
 import time
 from typing import Any
 
@@ -86,23 +85,6 @@ class FoxgloveParams:
     block: int = param(1, 100000, doc='learned episodes over which the success rate is taken')
 
 
-class _Listener:
-    """The WebSocket server's callbacks (its own thread): which channels got a subscriber."""
-
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.subscribed: set[int] = set()
-
-    def on_subscribe(self, client: Any, channel: Any) -> None:
-        with self.lock:
-            self.subscribed.add(int(channel.id))
-
-    def take(self) -> set[int]:
-        with self.lock:
-            out, self.subscribed = self.subscribed, set()
-        return out
-
-
 class FoxgloveNode(GraphNode):
     """Raw subscriptions forwarded to a Foxglove WebSocket server (module docstring)."""
 
@@ -129,7 +111,17 @@ class FoxgloveNode(GraphNode):
         self.path_sent = (0, 0.0)                        # (poses sent, wall time)
         self.reached: dict[int, int] = {}                # learned episode -> reached
         self.closed = False
-        self.listener = _Listener()
+        from foxglove.websocket import ServerListener
+
+        node = self
+
+        class Listener(ServerListener):
+            """The server's callbacks (its own thread; no-ops but this one)."""
+
+            def on_subscribe(self, client: Any, channel: Any) -> None:
+                node.on_subscribe(int(channel.id))
+
+        self.listener = Listener()
         try:
             self.server = foxglove.start_server(name='clis', host=HOST, port=self.cfg.port,
                                                 server_listener=self.listener)
@@ -214,7 +206,7 @@ class FoxgloveNode(GraphNode):
     def _poll(self) -> None:
         """Forward every message waiting on any subscription, each topic's in the order they
         were published (not sorted by receive stamps, which are not monotonic within a topic);
-        first the last message of each latched channel that got a subscriber, last the path."""
+        then the path."""
         if self.closed:
             return
         batch = []
@@ -226,10 +218,6 @@ class FoxgloveNode(GraphNode):
                                       name, typ, got[0]))   # in the order published
             except InvalidHandle:                        # destroyed meanwhile
                 continue
-        for cid in self.listener.take():                 # a late subscriber: as DDS would do
-            topic = self.by_id.get(cid)
-            if topic in self.latched and topic in self.last:
-                self.channels[topic].log(self.last[topic][0], log_time=self.last[topic][1])
         for recv, name, typ, data in batch:
             self.send(name, typ, data, recv)
             if typ == 'nav_msgs/msg/Odometry' and self._wanted(PATH_TOPIC):
@@ -237,6 +225,14 @@ class FoxgloveNode(GraphNode):
             elif typ == 'diagnostic_msgs/msg/DiagnosticArray':
                 self._on_event(name, data, recv)
         self._send_path()
+
+    def on_subscribe(self, channel_id: int) -> None:
+        """A client subscribed to a channel (the server's thread, the subscription in place):
+        the last message of a latched topic, as DDS gives it to a late subscriber."""
+        topic = self.by_id.get(channel_id)
+        last = self.last.get(topic) if topic in self.latched else None
+        if last is not None:
+            self.channels[topic].log(last[0], log_time=last[1])
 
     # ------------------------------------------------------------------ derived channels
 
