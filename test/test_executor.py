@@ -154,6 +154,26 @@ def test_a_callback_error_is_raised_and_a_destroyed_entity_is_skipped(ctx):
     pub.publish(Int64(data=2))
     assert spin_until(ex, lambda: other == [2]), other
     assert calls == [1], 'a destroyed subscription was called'
+    # destroyed by another callback while its own message waits (both ready at one wait):
+    # skipped, no error
+    pub2 = node.create_publisher(Int64, 'lean_err2', 10)
+    victim, killer_calls, victim_calls = [], [], []
+
+    def kill(m):
+        killer_calls.append(m.data)
+        if victim:
+            node.destroy_subscription(victim.pop())
+            killer_calls.append('destroyed')
+
+    node.create_subscription(Int64, 'lean_err2', kill, 10)
+    victim.append(node.create_subscription(
+        Int64, 'lean_err2', lambda m: victim_calls.append('destroyed' in killer_calls), 10))
+    assert spin_until(ex, lambda: pub2.get_subscription_count() == 2)
+    pub2.publish(Int64(data=3))
+    assert spin_until(ex, lambda: killer_calls == [3, 'destroyed']), killer_calls
+    pub2.publish(Int64(data=4))
+    assert spin_until(ex, lambda: killer_calls[-1] == 4), killer_calls
+    assert True not in victim_calls, 'called after it was destroyed'
 
     def fail():
         raise RuntimeError('callback failed')
