@@ -1,7 +1,8 @@
 """``ros2 run clis_learner foxglove``: a live view of the running graph in Foxglove.
 
-Serves the graph's topics on a Foxglove WebSocket (protocol ``foxglove.websocket.v1``, served by
-the ``foxglove-sdk`` package) bound to ``127.0.0.1:foxglove.port`` (default 8765; never another
+Serves the graph's topics on a Foxglove WebSocket (the Foxglove WebSocket protocol v1, which
+the ``foxglove-sdk`` package that serves it names ``foxglove.sdk.v1``, formerly
+``foxglove.websocket.v1``) bound to ``127.0.0.1:foxglove.port`` (default 8765; never another
 interface: from another machine, tunnel it, e.g. ``ssh -L 8765:127.0.0.1:8765 HOST``). Open it
 in the Foxglove app (Open connection, ``ws://127.0.0.1:8765``) with the layout
 ``config/foxglove_layout.json``: docs/foxglove.md.
@@ -14,14 +15,17 @@ other topic of the graph as it appears, looked for every ``foxglove.discovery_pe
 only ``foxglove.topics``), keeps the subscriptions out of the executor and takes every waiting
 message each ``foxglove.poll_period`` s of wall time (a take costs microseconds; a queue of
 ``foxglove.depth`` holds what arrives meanwhile, and a view that falls behind loses the oldest
-messages, never slows a publisher). A topic's channel is advertised with its first message;
-each message is logged with its receive time (wall clock, as in the bags).
+messages, never slows a publisher). A topic's channel is advertised once the topic has a
+publisher; each message is logged with its receive time (wall clock, as in the bags). A client
+that reads slower than the graph publishes loses the oldest of the ``foxglove.backlog``
+messages queued for it (the SDK's backpressure: the graph never waits for a viewer).
 
-Two channels are derived for the layout (only while a client subscribes to them):
+Two channels are derived for the layout:
 
 * ``/foxglove/path`` (``nav_msgs/msg/Path``): the robot's path since the current episode's
   ``start`` (from ``odom``: a pose each ``foxglove.path_step`` m), sent every
-  ``foxglove.path_period`` s of wall time while it grows;
+  ``foxglove.path_period`` s of wall time while it grows (decoded only while a client
+  subscribes to it);
 * ``/foxglove/success`` (``geometry_msgs/msg/Vector3Stamped``, at each learned episode's end,
   from ``learner/progress``): ``x`` = share of the last ``foxglove.block`` learned episodes
   that reached the destination, ``y`` = learned episodes, ``z`` = 1 if this one reached it.
@@ -83,6 +87,8 @@ class FoxgloveParams:
     path_step: float = param(0.0, 10.0, doc='[m] distance between two poses of the path')
     path_period: float = param(0.0, 60.0, doc='[s wall] least time between two path messages')
     block: int = param(1, 100000, doc='learned episodes over which the success rate is taken')
+    backlog: int = param(16, 10**6, doc='messages queued per client (a client that lags loses '
+                                        'the oldest)')
 
 
 class FoxgloveNode(GraphNode):
@@ -104,6 +110,7 @@ class FoxgloveNode(GraphNode):
         self.channels: dict[str, Any] = {}               # topic -> foxglove.Channel
         self.last: dict[str, tuple[bytes, int]] = {}     # topic -> (payload, log time)
         self.by_id: dict[int, str] = {}                  # channel id -> topic
+        self.counts: dict[str, int] = {}                 # topic -> messages forwarded
         #: topics whose last message a new subscriber gets (transient local; derived)
         self.latched = {PATH_TOPIC, SUCCESS_TOPIC}
         self.path: deque = deque()
@@ -124,7 +131,8 @@ class FoxgloveNode(GraphNode):
         self.listener = Listener()
         try:
             self.server = foxglove.start_server(name='clis', host=HOST, port=self.cfg.port,
-                                                server_listener=self.listener)
+                                                server_listener=self.listener,
+                                                message_backlog_size=self.cfg.backlog)
         except Exception as exc:                         # noqa: BLE001 e.g. the port is taken
             raise ConfigError(f'foxglove.port: cannot serve on {HOST}:{self.cfg.port} '
                               f'({exc})') from None
@@ -168,8 +176,13 @@ class FoxgloveNode(GraphNode):
             self.latched.add(topic)
 
     def _discover(self) -> None:
+        """Subscribe to new topics; advertise the channel of a topic once it has a publisher
+        (before its first message, which a client then gets too)."""
         if self.closed:
             return
+        for topic, (typ, _) in list(self.subs.items()):
+            if topic not in self.channels and self.count_publishers(topic):
+                self.channel(topic, typ)
         for topic, types in self.get_topic_names_and_types():
             if topic in self.subs or topic.startswith('/foxglove/'):
                 continue
@@ -201,6 +214,7 @@ class FoxgloveNode(GraphNode):
             return
         log_ns = max(log_ns, self.last.get(topic, (b'', 0))[1])   # never back in time
         self.last[topic] = (data, log_ns)
+        self.counts[topic] = self.counts.get(topic, 0) + 1
         chan.log(data, log_time=log_ns)
 
     def _poll(self) -> None:
@@ -298,6 +312,8 @@ class FoxgloveNode(GraphNode):
             return
         self.closed = True
         self.server.stop()
+        counts = ', '.join(f'{t} {n}' for t, n in sorted(self.counts.items()))
+        print(f'foxglove: {sum(self.counts.values())} messages served: {counts}', flush=True)
 
 
 #: The modules of the default condition (async), in the order of ``arbiter/selection``'s
