@@ -17,7 +17,7 @@ from nav_msgs.msg import Odometry
 import numpy as np
 import pytest
 from robot_util import Robot
-from ros_util import Probe, assert_rate
+from ros_util import Probe, assert_grid
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState, LaserScan
 from visualization_msgs.msg import MarkerArray
@@ -144,18 +144,23 @@ def test_topics_types_frames_and_rates(robot):
     _, p = robot
     for topic in STREAMS:
         p.msgs[topic].clear()
-    p.spin_for(2.0)
+        p.seqs[topic].clear()
+    # a bounded stream judged on what arrived (the publisher's grid between consecutive
+    # sequence numbers), not how much of it reached the probe per wall second
+    want = {t: 20 if t in ('markers', 'reward') else 40 for t in RATES}
+    assert p.spin_until(lambda: all(len(p.msgs[t]) >= n for t, n in want.items()), 120), \
+        {t: len(p.msgs[t]) for t in RATES}
     for topic, rate in RATES.items():
         stamps = [stamp(m) for m in p.msgs[topic]]
-        assert len(stamps) > 10, topic
         assert all(b > a for a, b in zip(stamps, stamps[1:])), f'{topic}: stamps increase'
-        # rewards only within episodes (the bridge wanders between them)
-        assert_rate(stamps, rate, topic, min_arrived=0.0 if topic == 'reward' else 0.6)
-        if topic in ('/clock', 'ir', 'reward'):
-            steps = np.diff(stamps)
-            assert np.allclose(steps[steps < 0.075], TICK, atol=2e-3), f'{topic}: 50 ms grid'
-    clock = [stamp(m) for m in p.msgs['/clock']]
-    assert clock[-1] - clock[0] > 0.6 * SPEED * 2.0, 'the clock runs at the speed factor'
+        seqs = p.seqs[topic]
+        if topic == 'reward':       # within an episode only (the bridge wanders between them)
+            last = int(p.msgs[topic][-1].vector.z)
+            keep = [k for k, m in enumerate(p.msgs[topic]) if int(m.vector.z) == last]
+            stamps, seqs = [stamps[k] for k in keep], [seqs[k] for k in keep]
+            if len(stamps) < 12:
+                continue            # the last episode just started: judged in the idle test
+        assert_grid(stamps, seqs, 1.0 / rate, topic)
     scan = p.msgs['ir'][-1]
     assert scan.header.frame_id == 'base_link' and len(scan.ranges) == 7
     assert scan.angle_min == pytest.approx(-math.pi / 2) and scan.range_max == pytest.approx(0.5)
