@@ -416,13 +416,20 @@ def run_selection(result, path: Path) -> None:
 
 
 def draw_all(out: Path, results, summary: dict) -> list[Path]:
-    """Draw every figure into ``out``; return the files written."""
+    """Draw every figure into ``out``; return the files written. Interrupted (Ctrl-C) or
+    failed, it closes the figures it opened."""
     paths = []
-    for name, fn in (('fig3a.png', fig3a), ('fig3a_learning.png', fig3a_learning),
-                     ('fig3bc.png', fig3bc), ('fig4.png', fig4),
-                     ('fig4_modules.png', fig4_modules),
-                     ('fig5.png', fig5), ('diagnostics.png', fig_diagnostics)):
-        fn(results, out / name)
-        if (out / name).exists():
-            paths.append(out / name)
+    before = set(plt.get_fignums())
+    try:
+        for name, fn in (('fig3a.png', fig3a), ('fig3a_learning.png', fig3a_learning),
+                         ('fig3bc.png', fig3bc), ('fig4.png', fig4),
+                         ('fig4_modules.png', fig4_modules),
+                         ('fig5.png', fig5), ('diagnostics.png', fig_diagnostics)):
+            fn(results, out / name)
+            if (out / name).exists():
+                paths.append(out / name)
+    except BaseException:
+        for num in set(plt.get_fignums()) - before:
+            plt.close(num)
+        raise
     return paths

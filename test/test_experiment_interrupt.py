@@ -1,0 +1,150 @@
+"""Ctrl-C: every `clis` command stops with one line and exit 130, and an interrupted
+`clis experiment` resumed with --resume ends with the results of an uninterrupted one, byte for
+byte (results, checkpoints and tables are written atomically; issue 23)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+from clis_learner.cli import main as clis
+import numpy as np
+import pytest
+
+#: 1 condition, 1 seed, 20 episodes of at most 10 s simulated, evaluated every 5.
+TINY = ['experiment', '--conditions', 'view', '--episodes', '20', '--block', '5', '--seeds', '1',
+        '--eval-episodes', '1', '--eval-every', '5', '--workers', '1', '--quiet',
+        '--train-start', 'starts', '--sim-set', 'episode.time_limit=10.0']
+
+
+@pytest.mark.parametrize('module, name', [('report', '_main'), ('compare', '_main'),
+                                          ('experiment', 'main'), ('doctor', 'run_doctor')])
+def test_ctrl_c_is_one_line_and_130_for_every_command(monkeypatch, capsys, tmp_path, module,
+                                                      name):
+    import importlib
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(importlib.import_module(f'clis_learner.{module}'), name, interrupted)
+    argv = {'report': ['report', str(tmp_path)],
+            'compare': ['compare', '--a', 'x', '--b', 'y', '--condition', 'view'],
+            'experiment': ['experiment', '--out', str(tmp_path / 'x')],
+            'doctor': ['doctor']}[module]
+    capsys.readouterr()
+    try:
+        code = clis(argv)
+    except KeyboardInterrupt:
+        pytest.fail('KeyboardInterrupt escaped clis (a traceback for the user)')
+    assert code == 130
+    err = capsys.readouterr().err.strip()
+    assert err == f'clis {argv[0]}: interrupted', err
+
+
+def test_ctrl_c_during_an_experiment_stops_its_processes_with_one_line(tmp_path):
+    """A real Ctrl-C: SIGINT to the process group of `clis experiment` while its worker
+    runs."""
+    out = tmp_path / 'exp'
+    proc = subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', *TINY[:3],
+                             '--episodes', '200', '--block', '5', '--eval-every', '0',
+                             '--quiet', '--workers', '1', '--out', str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True,         # its own group, as a terminal's
+                            env={**os.environ,               # the code this test imports
+                                 'PYTHONPATH': os.pathsep.join(p for p in sys.path if p)})
+    try:
+        deadline = time.monotonic() + 120
+        while len(_group(proc.pid)) < 3 and proc.poll() is None:   # main, manager, worker
+            assert time.monotonic() < deadline, 'clis experiment did not start its worker'
+            time.sleep(0.1)
+        time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert 'Traceback' not in err and err.strip() == 'clis experiment: interrupted', err
+    time.sleep(0.5)
+    assert not _group(proc.pid), 'a worker or the manager was left behind'
+
+
+def _group(pgid: int) -> list[int]:
+    """The processes of process group ``pgid``."""
+    pids = []
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid:
+            pids.append(int(stat.parent.name))
+    return pids
+
+
+def _interrupted_clis(argv: list[str], delay: float) -> int:
+    """``clis argv`` with a SIGINT ``delay`` s after the start (130 if it came after the
+    command had finished)."""
+    def ctrl_c(signum, frame):
+        signal.raise_signal(signal.SIGINT)
+    old = signal.signal(signal.SIGALRM, ctrl_c)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, delay)
+        try:
+            return clis(argv)
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+    except KeyboardInterrupt:
+        return -130
+    finally:
+        signal.signal(signal.SIGALRM, old)
+
+
+def _complete_files(out: Path) -> None:
+    """Every file of ``out`` that is not a temporary one is whole."""
+    for path in out.rglob('*'):
+        if not path.is_file() or path.name.endswith('.tmp'):
+            continue
+        if path.suffix == '.json':
+            json.loads(path.read_text())
+        elif path.suffix == '.npz':
+            with np.load(path, allow_pickle=False) as z:
+                assert '__meta__' in z.files, path
+        elif path.suffix == '.csv':
+            lines = path.read_text().splitlines()
+            assert len({line.count(',') for line in lines}) <= 2, path   # quoted commas
+
+
+def test_interrupted_experiment_resumes_to_the_same_results(tmp_path, monkeypatch):
+    monkeypatch.setattr(signal, 'getsignal', signal.getsignal)      # restored afterwards
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        ref = tmp_path / 'ref'
+        assert clis([*TINY, '--out', str(ref)]) == 0         # the modules loaded
+        t0 = time.monotonic()
+        assert clis([*TINY, '--out', str(ref)]) == 0         # the time of a whole command
+        whole = time.monotonic() - t0
+        out = tmp_path / 'out'
+        rng = np.random.default_rng(23)
+        interrupts = attempts = outside = 0
+        while interrupts < 20:
+            attempts += 1
+            assert attempts < 80, f'only {interrupts} interrupts landed in {attempts} tries'
+            code = _interrupted_clis([*TINY, '--out', str(out), '--resume'],
+                                     float(rng.uniform(0.01, whole)))
+            assert code in (0, 130, -130), code
+            interrupts += code != 0
+            outside += code == -130
+            if out.exists():
+                _complete_files(out)
+        # clis stopped itself (130) but for a Ctrl-C in its first milliseconds (parsing)
+        assert outside <= 2, f'{outside} of {interrupts} interrupts escaped clis'
+        assert clis([*TINY, '--out', str(out), '--resume']) == 0
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    for name in ('episodes.csv', 'eval.csv'):
+        assert (out / name).read_bytes() == (ref / name).read_bytes(), name
