@@ -21,6 +21,7 @@ from websockets.sync.client import connect
 
 #: The Foxglove WebSocket protocol v1 under its two names (foxglove-sdk's server: the first).
 SUBPROTOCOLS = ['foxglove.sdk.v1', 'foxglove.websocket.v1']
+UNKNOWN = 'Unknown channel ID: '
 
 
 def watch(port: int, seconds: float, wait: float = 120.0) -> dict[str, tuple[int, int]]:
@@ -37,6 +38,7 @@ def watch(port: int, seconds: float, wait: float = 120.0) -> dict[str, tuple[int
                 raise
             time.sleep(0.5)
     topics: dict[int, str] = {}                          # subscription id -> topic
+    named: dict[int, str] = {}                           # channel id -> topic
     counts: dict[str, list[int]] = {}
     end = time.monotonic() + seconds
     with ws:
@@ -50,10 +52,18 @@ def watch(port: int, seconds: float, wait: float = 120.0) -> dict[str, tuple[int
                 if msg.get('op') == 'advertise':
                     subs = []
                     for ch in msg['channels']:
+                        named[ch['id']] = ch['topic']
                         topics[len(topics) + 1] = ch['topic']
                         counts.setdefault(ch['topic'], [0, 0])
                         subs.append({'id': len(topics), 'channelId': ch['id']})
                     ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+                elif msg.get('op') == 'status' and msg['message'].startswith(UNKNOWN):
+                    # a channel created while we connected: foxglove-sdk knows it a moment later
+                    cid = int(msg['message'][len(UNKNOWN):])
+                    time.sleep(0.2)
+                    topics[len(topics) + 1] = named[cid]
+                    ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+                        {'id': len(topics), 'channelId': cid}]}))
             elif frame[0] == 0x01:
                 (sub,) = struct.unpack_from('<I', frame, 1)
                 c = counts.setdefault(topics[sub], [0, 0])

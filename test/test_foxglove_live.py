@@ -6,7 +6,7 @@ WebSocket protocol v1 (``foxglove.websocket.v1``, which foxglove-sdk's server na
 subscribes to every channel the server advertises and decodes each message with the advertised
 ``ros2msg`` schema (``mcap_ros2``'s decoder, an independent reader). Judged on what arrived:
 every channel has messages that decode, each schema is the bag's text, the sim-time stamps of
-``/clock`` only grow, the derived success rate agrees with the run's ``episodes.csv``, and the
+``/clock`` never go back, the derived success rate agrees with the run's ``episodes.csv``, and the
 server listens on 127.0.0.1 only (``/proc/net/tcp*`` of the node's own sockets).
 """
 
@@ -41,7 +41,8 @@ OFFERED = [SUBPROTOCOL, 'foxglove.websocket.v1']
 EXPECTED = {'/clock', '/odom', '/arena', '/markers', '/reward', '/episode', '/cmd_vel',
             '/arbiter/selection', '/arbiter/action', '/place/belief', '/learner/progress',
             PATH_TOPIC, SUCCESS_TOPIC}
-LISTEN = '0A'                                   # TCP_LISTEN in /proc/net/tcp
+LISTEN = '0A'
+UNKNOWN = 'Unknown channel ID: '                                   # TCP_LISTEN in /proc/net/tcp
 
 
 def free_port() -> int:
@@ -92,7 +93,8 @@ def live(tmp_path_factory):
                              '--quiet', '--condition', 'async', '--episodes', '2', '--seed', '1',
                              '--foxglove', str(port)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    seen = {'channels': {}, 'messages': {}, 'listen': None, 'protocol': None, 'info': None}
+    seen = {'channels': {}, 'messages': {}, 'listen': None, 'protocol': None, 'info': None,
+            'other': [], 'retried': []}
     try:
         ws = None
         deadline = time.monotonic() + 60
@@ -126,6 +128,18 @@ def live(tmp_path_factory):
                             subs[len(subs) + 1] = ch['id']
                             new.append({'id': len(subs), 'channelId': ch['id']})
                         ws.send(json.dumps({'op': 'subscribe', 'subscriptions': new}))
+                    elif msg['op'] == 'status' and msg['message'].startswith(UNKNOWN):
+                        # foxglove-sdk 0.30.3 refuses, now and then, a channel created while
+                        # the client connected; it knows it a moment later: once more
+                        cid = int(msg['message'][len(UNKNOWN):])
+                        assert cid in seen['channels'] and cid not in seen['retried'], msg
+                        seen['retried'].append(cid)
+                        time.sleep(0.2)
+                        subs[len(subs) + 1] = cid
+                        ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+                            {'id': len(subs), 'channelId': cid}]}))
+                    else:
+                        seen['other'].append(msg)
                 elif frame[0] == 0x01:                       # message data
                     sub, log_ns = struct.unpack_from('<IQ', frame, 1)
                     seen['messages'].setdefault(subs[sub], []).append((log_ns, frame[13:]))
@@ -161,14 +175,16 @@ def test_every_advertised_channel_decodes_with_its_schema(live):
     assert EXPECTED <= topics, EXPECTED - topics
     silent = [live['channels'][c]['topic'] for c in live['channels']
               if not live['messages'].get(c)]
-    assert not silent, f'advertised but nothing arrived: {silent}'
+    assert not silent, f'advertised but nothing arrived: {silent}; {live["other"][:5]}'
     msgs = decoded(live)
     for ch in live['channels'].values():                 # the bags' schema, byte for byte
         assert ch['schema'] == message_definition(ch['schemaName']), ch['topic']
-    # sim time: /clock only moves forward and covers the two episodes
+    # sim time: /clock never goes back (it holds at the gates) and covers the learned episodes
     clock = [m.clock.sec + 1e-9 * m.clock.nanosec for m in msgs['/clock']]
-    back = [(a, b) for a, b in zip(clock, clock[1:]) if b <= a]
+    back = [(a, b) for a, b in zip(clock, clock[1:]) if b < a]
     assert not back, back[:5]
+    end = msgs[SUCCESS_TOPIC][-1].header.stamp
+    assert clock[-1] >= end.sec + 1e-9 * end.nanosec > clock[0]
     assert all(m.header.frame_id == 'odom' for m in msgs['/odom'])
     assert {m.header.frame_id for m in msgs['/arbiter/selection']} <= {'innate', 'view',
                                                                         'place'}

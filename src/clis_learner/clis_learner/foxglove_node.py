@@ -9,10 +9,13 @@ in the Foxglove app (Open connection, ``ws://127.0.0.1:8765``) with the layout
 
 Each topic is one channel with the bag's schema (encoding ``ros2msg``, named ``pkg/msg/Type``,
 the text of :func:`clis_learner.core.bag.message_definition`) and the bag's payloads: the
-serialized CDR bytes as they came off the wire, never decoded. The node subscribes *raw* to the
-topics the recorder records (:data:`clis_learner.recorder_node.GRAPH_TOPICS` at start, any
-other topic of the graph as it appears, looked for every ``foxglove.discovery_period`` s; or
-only ``foxglove.topics``), keeps the subscriptions out of the executor and takes every waiting
+serialized CDR bytes as they came off the wire, never decoded. It serves the topics the
+recorder records (:data:`clis_learner.recorder_node.GRAPH_TOPICS` at start, any other topic of
+the graph as it appears, looked for every ``foxglove.discovery_period`` s; or only
+``foxglove.topics``). The node subscribes *raw* to a topic only while a client subscribes to
+its channel (an open Foxglove costs the graph what its panels show), and always to the
+transient-local ones (whose last message a late client gets); it keeps the subscriptions out
+of the executor and takes every waiting
 message each ``foxglove.poll_period`` s of wall time (a take costs microseconds; a queue of
 ``foxglove.depth`` holds what arrives meanwhile, and a view that falls behind loses the oldest
 messages, never slows a publisher). A topic's channel is advertised once the topic has a
@@ -106,7 +109,10 @@ class FoxgloveNode(GraphNode):
         self.cfg: FoxgloveParams = build(FoxgloveParams, values['foxglove'], where='foxglove')
         self.only = [self.resolve_topic_name(t.strip())
                      for t in self.cfg.topics.split(',') if t.strip()]
+        self.types: dict[str, str] = {}                  # topic served -> its type
         self.subs: dict[str, tuple[str, Any]] = {}       # topic -> (type, subscription)
+        self.odom = self.resolve_topic_name('odom')
+        self.dirty = False                               # a client (un)subscribed
         self.channels: dict[str, Any] = {}               # topic -> foxglove.Channel
         self.last: dict[str, tuple[bytes, int]] = {}     # topic -> (payload, log time)
         self.by_id: dict[int, str] = {}                  # channel id -> topic
@@ -128,6 +134,9 @@ class FoxgloveNode(GraphNode):
             def on_subscribe(self, client: Any, channel: Any) -> None:
                 node.on_subscribe(int(channel.id))
 
+            def on_unsubscribe(self, client: Any, channel: Any) -> None:
+                node.dirty = True
+
         self.listener = Listener()
         try:
             self.server = foxglove.start_server(name='clis', host=HOST, port=self.cfg.port,
@@ -140,8 +149,11 @@ class FoxgloveNode(GraphNode):
         wanted = {self.resolve_topic_name(t): typ for t, typ in GRAPH_TOPICS.items()}
         if self.only:
             wanted = {t: wanted[t] for t in self.only if t in wanted}
-        for topic in sorted(wanted, key=lambda t: not t.endswith('/episode')):
-            self._subscribe(topic, wanted[topic])
+        for topic, typ in wanted.items():
+            self._add(topic, typ)
+        self.channel(PATH_TOPIC, 'nav_msgs/msg/Path')
+        self.channel(SUCCESS_TOPIC, 'geometry_msgs/msg/Vector3Stamped')
+        self._sync()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.cfg.discovery_period, self._discover, clock=steady)
         self.create_timer(self.cfg.poll_period, self._poll, clock=steady)
@@ -152,9 +164,10 @@ class FoxgloveNode(GraphNode):
 
     # ------------------------------------------------------------------ subscriptions
 
-    def _subscribe(self, topic: str, msg_type: str) -> None:
+    def _add(self, topic: str, msg_type: str) -> None:
+        """Serve ``topic`` (subscribed to while :meth:`_needed`)."""
         try:
-            cls = message_class(msg_type)
+            message_class(msg_type)
         except (AttributeError, ImportError, ValueError) as exc:
             self.get_logger().warning(f'{topic}: type {msg_type} not available ({exc}): '
                                       'not served', once=True)
@@ -163,32 +176,57 @@ class FoxgloveNode(GraphNode):
         latched = any(topic == self.resolve_topic_name(t) for t in LATCHED_TOPICS)
         if offered:                                      # as the publishers offer it
             latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+        self.types[topic] = msg_type
+        if latched:
+            self.latched.add(topic)
+
+    def _needed(self, topic: str) -> bool:
+        """Whether to subscribe to ``topic`` now: always to a latched topic (its last message
+        is what a late client gets), else while a client subscribes to its channel (or, for
+        ``odom``, to the path's)."""
+        if topic in self.latched:
+            return True
+        chan = self.channels.get(topic)
+        if chan is not None and chan.has_sinks():
+            return True
+        return topic == self.odom and self.channels[PATH_TOPIC].has_sinks()
+
+    def _sync(self) -> None:
+        """Subscribe to the topics :meth:`_needed`, and unsubscribe from the others."""
+        for topic, msg_type in self.types.items():
+            need = self._needed(topic)
+            if need and topic not in self.subs:
+                self._subscribe(topic, msg_type)
+            elif not need and topic in self.subs:
+                self.destroy_subscription(self.subs.pop(topic)[1])
+
+    def _subscribe(self, topic: str, msg_type: str) -> None:
+        offered = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
         reliable = not any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered)
         qos = QoSProfile(
             depth=self.cfg.depth,
             reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-            durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+            durability=(DurabilityPolicy.TRANSIENT_LOCAL if topic in self.latched
                         else DurabilityPolicy.VOLATILE))
-        sub = self.create_subscription(cls, topic, lambda *_: None, qos, raw=True,
-                                       callback_group=self._polled)
+        sub = self.create_subscription(message_class(msg_type), topic, lambda *_: None, qos,
+                                       raw=True, callback_group=self._polled)
         self.subs[topic] = (msg_type, sub)
-        if latched:
-            self.latched.add(topic)
 
     def _discover(self) -> None:
-        """Subscribe to new topics; advertise the channel of a topic once it has a publisher
-        (before its first message, which a client then gets too)."""
+        """Serve new topics; advertise the channel of a topic once it has a publisher (a
+        client then subscribes before its first message)."""
         if self.closed:
             return
-        for topic, (typ, _) in list(self.subs.items()):
-            if topic not in self.channels and self.count_publishers(topic):
-                self.channel(topic, typ)
         for topic, types in self.get_topic_names_and_types():
-            if topic in self.subs or topic.startswith('/foxglove/'):
+            if topic in self.types or topic.startswith('/foxglove/'):
                 continue
             if (self.only and topic not in self.only) or (not self.only and topic in EXCLUDED):
                 continue
-            self._subscribe(topic, types[0])
+            self._add(topic, types[0])
+        for topic, msg_type in self.types.items():
+            if topic not in self.channels and self.count_publishers(topic):
+                self.channel(topic, msg_type)
+        self._sync()
 
     # ------------------------------------------------------------------ forwarding
 
@@ -223,6 +261,9 @@ class FoxgloveNode(GraphNode):
         then the path."""
         if self.closed:
             return
+        if self.dirty:                                   # a client (un)subscribed
+            self.dirty = False
+            self._sync()
         batch = []
         for name, (typ, sub) in self.subs.items():
             try:
@@ -234,7 +275,7 @@ class FoxgloveNode(GraphNode):
                 continue
         for recv, name, typ, data in batch:
             self.send(name, typ, data, recv)
-            if typ == 'nav_msgs/msg/Odometry' and self._wanted(PATH_TOPIC):
+            if name == self.odom and self.channels[PATH_TOPIC].has_sinks():
                 self._on_odom(data)
             elif typ == 'diagnostic_msgs/msg/DiagnosticArray':
                 self._on_event(name, data, recv)
@@ -243,16 +284,13 @@ class FoxgloveNode(GraphNode):
     def on_subscribe(self, channel_id: int) -> None:
         """A client subscribed to a channel (the server's thread, the subscription in place):
         the last message of a latched topic, as DDS gives it to a late subscriber."""
+        self.dirty = True
         topic = self.by_id.get(channel_id)
         last = self.last.get(topic) if topic in self.latched else None
         if last is not None:
             self.channels[topic].log(last[0], log_time=last[1])
 
     # ------------------------------------------------------------------ derived channels
-
-    def _wanted(self, topic: str) -> bool:
-        chan = self.channels.get(topic)
-        return chan is None or chan.has_sinks()
 
     def _on_odom(self, data: bytes) -> None:
         msg = deserialize_message(data, Odometry)
