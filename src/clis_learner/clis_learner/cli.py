@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from typing import NoReturn
 
 # One BLAS thread per process, set before numpy loads: `clis experiment` runs one process per
 # core, and OpenBLAS threads on top of that oversubscribe the cores (the place module's
@@ -29,6 +30,14 @@ examples:
 """
 
 
+class Parser(argparse.ArgumentParser):
+    """An argument error is one line on stderr, naming the option, and exit code 2 (argparse's
+    own prints the whole usage first); the subcommands' parsers are of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f'{self.prog}: {message} (see {self.prog} --help)\n')
+
+
 class HelpFormatter(argparse.RawDescriptionHelpFormatter,
                     argparse.ArgumentDefaultsHelpFormatter):
     """Descriptions and epilogs as written, and every option's default in its help (not for
@@ -41,7 +50,7 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter,
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog='clis', description='CLIS with asynchronous modules on ROS 2 (Uchibe & Doya).',
         epilog=EPILOG, formatter_class=HelpFormatter)
     parser.add_argument('--network', action='store_true',

@@ -31,6 +31,8 @@ import sys
 import time
 from typing import Any
 
+from cr_sim.core.arena import load_arena
+from cr_sim.core.starts import draw_start
 import numpy as np
 
 from clis_learner.cli import HelpFormatter
@@ -268,6 +270,8 @@ def main(args: argparse.Namespace) -> int:
                      f'{args.block}): give --block {args.episodes} or less')
     if args.arena is not None and not args.arena.is_file():
         return _fail(f'--arena {args.arena}: no such file')
+    if out.exists() and not out.is_dir():
+        return _fail(f'--out {out}: not a folder')
     try:
         common = _overrides(args.sets, '--set')
         sim_overrides = _overrides(args.sim_sets, '--sim-set')
@@ -291,13 +295,14 @@ def main(args: argparse.Namespace) -> int:
     if twice:
         return _fail(f'conditions {", ".join(twice)} appear more than once (with --ablation: '
                      'leave out what it adds)')
-    try:  # validate every parameter set before starting hours of work
-        from clis_learner.core.config import check_overrides
-        check_overrides(common, '--set')           # the flag, not clis.yaml, is to blame
-        for spec in specs:
+    bad = _check_inputs(args, common, sim_overrides)
+    if bad:
+        return _fail(bad)
+    for spec in specs:  # validate every parameter set before starting hours of work
+        try:
             spec.validate()
-    except (ValueError, OSError) as exc:
-        return _fail(str(exc))
+        except (ValueError, OSError) as exc:
+            return _fail(f'--conditions {spec.label}: {exc}')
     if args.resume:
         stale = resume_mismatches(specs)
         if stale:
@@ -353,6 +358,36 @@ def _finish(out: Path, results: list[JobResult], wall: float | None) -> int:
     for line in summary['table']:
         print(line)
     return 0
+
+
+def _check_inputs(args: argparse.Namespace, common: dict, sim_overrides: dict) -> str:
+    """The first input that is wrong, as a message naming its flag ('' if all are right):
+    --set, --sim-set, --arena and --train-start are checked on their own so that the message
+    blames the flag, not a condition or a config file."""
+    from cr_sim.core.sim import load_sim_params
+
+    from clis_learner.core.config import check_overrides, load_clis_params
+    try:
+        check_overrides(common, '--set')           # the flag, not clis.yaml, is to blame
+    except ValueError as exc:
+        return str(exc)
+    for flag, load, overrides in (('--set', load_clis_params, common),
+                                  ('--sim-set', load_sim_params, sim_overrides)):
+        if overrides:
+            try:
+                load(overrides=overrides)
+            except (ValueError, TypeError) as exc:
+                return f'{flag}: {exc}'
+    try:
+        sim_params = load_sim_params(overrides=sim_overrides)
+        arena = load_arena(str(args.arena) if args.arena else None, sim_params.robot.radius)
+    except (ValueError, OSError) as exc:
+        return f'--arena {args.arena or "(config/arena.yaml)"}: {exc}'
+    try:
+        draw_start(args.train_start, arena, np.random.default_rng(0))
+    except ValueError as exc:
+        return f'--train-start: {exc}'
+    return ''
 
 
 def resume_mismatches(specs: list[JobSpec]) -> list[tuple[JobSpec, list[str]]]:
