@@ -6,7 +6,7 @@ to every channel as it is advertised, and after ``--seconds`` (or when the serve
 prints the messages and bytes received per channel. docs/benchmarks.md runs it next to
 ``bench/bench_graph.py --cpu-only --foxglove PORT``.
 
-    python bench/foxglove_client.py --port 8765 --seconds 60
+    python bench/foxglove_client.py --port 8765 --seconds 60 [--topics layout]
 """
 
 from __future__ import annotations
@@ -24,9 +24,10 @@ SUBPROTOCOLS = ['foxglove.sdk.v1', 'foxglove.websocket.v1']
 UNKNOWN = 'Unknown channel ID: '
 
 
-def watch(port: int, seconds: float, wait: float = 120.0) -> dict[str, tuple[int, int]]:
+def watch(port: int, seconds: float, wait: float = 120.0,
+          only: frozenset[str] = frozenset()) -> dict[str, tuple[int, int]]:
     """Topic -> (messages, payload bytes) received in ``seconds`` from the first connection,
-    for every channel advertised."""
+    for every channel advertised (subscribed to: those of ``only``, or all)."""
     deadline = time.monotonic() + wait
     while True:
         try:
@@ -52,6 +53,8 @@ def watch(port: int, seconds: float, wait: float = 120.0) -> dict[str, tuple[int
                 if msg.get('op') == 'advertise':
                     subs = []
                     for ch in msg['channels']:
+                        if only and ch['topic'] not in only:
+                            continue
                         named[ch['id']] = ch['topic']
                         topics[len(topics) + 1] = ch['topic']
                         counts.setdefault(ch['topic'], [0, 0])
@@ -72,6 +75,27 @@ def watch(port: int, seconds: float, wait: float = 120.0) -> dict[str, tuple[int
     return {t: (c[0], c[1]) for t, c in sorted(counts.items())}
 
 
+def layout_topics() -> frozenset[str]:
+    """The topics config/foxglove_layout.json shows (3D panels' topics, plotted paths)."""
+    from pathlib import Path
+    shown = set()
+
+    def walk(node: object) -> None:
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if k == 'topics' and isinstance(v, dict):
+                    shown.update(v)
+                elif k == 'value' and isinstance(v, str):
+                    shown.add(v.split('.')[0])
+                walk(v)
+        elif isinstance(node, list):
+            for v in node:
+                walk(v)
+    path = Path(__file__).resolve().parent.parent / 'config' / 'foxglove_layout.json'
+    walk(json.loads(path.read_text()))
+    return frozenset(shown)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -79,8 +103,14 @@ def main() -> int:
     ap.add_argument('--seconds', type=float, default=60.0)
     ap.add_argument('--wait', type=float, default=120.0,
                     help='seconds to wait for the server to accept connections')
+    ap.add_argument('--topics', default='', metavar='LIST',
+                    help="comma-separated topics to subscribe to; '' = every channel; "
+                         "'layout' = those config/foxglove_layout.json shows")
     args = ap.parse_args()
-    got = watch(args.port, args.seconds, args.wait)
+    only = frozenset(t for t in args.topics.split(',') if t)
+    if args.topics == 'layout':
+        only = layout_topics()
+    got = watch(args.port, args.seconds, args.wait, only)
     total = sum(n for n, _ in got.values())
     size = sum(b for _, b in got.values())
     print(f'{len(got)} channels, {total} messages, {size / 1e6:.1f} MB: '
