@@ -104,7 +104,7 @@ def plot(rows: list[dict[str, float]], a_name: str, b_name: str, title: str,
 
 
 def _error(message: str) -> int:
-    print(f'clis compare: {message}', file=sys.stderr)
+    print(f'clis compare: {" ".join(str(message).split())}', file=sys.stderr)
     return 2
 
 
@@ -123,7 +123,7 @@ def _main(args: argparse.Namespace) -> int:
     except (KeyError, ValueError, UnicodeDecodeError) as exc:
         return _error(f'cannot read the episodes ({type(exc).__name__}: {exc})')
     if not a or not b:
-        return _error(f'no learning episodes of condition {args.condition!r} in '
+        return _error(f'--condition {args.condition}: no learning episodes of it in '
                       f'{"--a" if not a else "--b"}')
     try:
         rows = compare(a, b, args.block)

@@ -220,7 +220,8 @@ def _worker(spec: JobSpec, q) -> str:
 
 
 def _fail(message: str, code: int = 2) -> int:
-    print(f'clis experiment: {message}', file=sys.stderr)
+    """Print ``message`` as one line (a YAML error's own lines joined) and return ``code``."""
+    print(f'clis experiment: {" ".join(str(message).split())}', file=sys.stderr)
     return code
 
 

@@ -43,7 +43,11 @@ def load_runs(folders: list[Path]) -> list[JobResult]:
             paths = [p for p in listed if p.is_file()] if listed else paths
         if not paths:
             raise ReportError(f'no runs in {folder}/runs (run clis experiment)')
-        runs += [JobResult.load(p) for p in paths]
+        for path in paths:
+            try:
+                runs.append(JobResult.load(path))
+            except (ValueError, TypeError, OSError) as exc:
+                raise ReportError(f'{path}: not a readable run ({exc})') from None
     # the paper's order (innate, view, place, sync, async), each followed by its variants
     return sorted(runs, key=lambda r: (CONDITIONS.index(r.spec['condition']),
                                        r.spec['label'] != r.spec['condition'],
@@ -254,7 +258,7 @@ def _main(args: argparse.Namespace) -> int:
     try:
         runs = load_runs(args.folders)
     except (ReportError, ValueError, OSError) as exc:
-        print(f'clis report: {exc}', file=sys.stderr)
+        print(f'clis report: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2
     ev = eval_report(runs)
     print((ev + '\n\n' if ev else '') + report(runs) + _band_note(runs))
