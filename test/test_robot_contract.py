@@ -9,7 +9,6 @@ after ``episode.time_limit``, one reward per tick of an episode, the next ``star
 from __future__ import annotations
 
 import math
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped, Vector3Stamped
@@ -68,19 +67,6 @@ def robot(request):
     p.close()
     out = r.close()
     assert 'Traceback' not in out, out
-
-
-def drive(p, v: float, w: float, seconds: float, until=None) -> bool:
-    """Publish (v, w) every 50 ms wall for ``seconds`` (or until ``until()``)."""
-    msg = TwistStamped()
-    msg.twist.linear.x, msg.twist.angular.z = v, w
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        if until is not None and until():
-            return True
-        p.pub.publish(msg)
-        p.spin_for(0.03)
-    return until is not None and until()
 
 
 def heading_controller(p, reverse_away: bool = False):
@@ -200,9 +186,9 @@ def test_commands_drive_nan_never_moves_and_wheels_are_clamped(robot):
     def pose():
         return at(p.msgs['odom'][-1])
 
-    def publish_until(v: float, done, steps: int = 2000) -> bool:
+    def publish_until(v: float, done, steps: int = 2000, w: float = 0.0) -> bool:
         msg = TwistStamped()
-        msg.twist.linear.x = v
+        msg.twist.linear.x, msg.twist.angular.z = v, w
         for _ in range(steps):                  # a hang guard, not a window
             p.pub.publish(msg)
             p.spin_for(0.02)
@@ -230,8 +216,8 @@ def test_commands_drive_nan_never_moves_and_wheels_are_clamped(robot):
     def spun() -> bool:
         return any(max(abs(v) for v in m.velocity) > 1.0 for m in p.msgs['wheels'][n:])
 
-    drive(p, 0.0, 40.0, 5.0, until=spun)     # spin far over the wheel limit
-    drive(p, 0.0, 0.0, 0.3)
+    assert publish_until(0.0, spun, w=40.0)  # spin far over the wheel limit
+    publish_until(0.0, still)
     speeds = [max(abs(v) for v in m.velocity) for m in p.msgs['wheels'][n:]]
     assert max(speeds) <= 1.3 + 1e-3, f'wheel speed {max(speeds)} over the limit'
     assert max(speeds) > 1.0, 'the spin command was executed (clamped)'
@@ -298,27 +284,50 @@ def test_a_collision_costs_once_while_pressed(robot):
     def over(ep: int) -> bool:
         return events(p)[-1][1] != 'start' or int(events(p)[-1][2]['episode']) != ep
 
-    for _ in range(3):
+    def command(v: float, w: float) -> None:
+        msg = TwistStamped()
+        msg.twist.linear.x, msg.twist.angular.z = v, w
+        p.pub.publish(msg)
+
+    for _ in range(6):                              # a hang guard, not a window
         n = len(events(p))
         assert p.spin_until(lambda n=n: len(events(p)) > n and events(p)[-1][1] == 'start',
-                            TIME_LIMIT / SPEED * 4 + 10), 'a fresh episode'
+                            TIME_LIMIT / SPEED * 4 + 60), 'a fresh episode'
         ep = int(events(p)[-1][2]['episode'])
-        # face the destination, then back away from it into whatever is behind (a wall)
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and not over(ep):
-            v, w = heading_controller(p)
-            if abs(w) < 0.1 and v > 0:
-                break
-            drive(p, 0.0, w, 0.05)
-        drive(p, -0.8, 0.0, 6.0 / SPEED, until=lambda ep=ep: hit(ep) or over(ep))
+        # face the destination (a decision per new camera reading), then back away from it
+        # into whatever is behind (a wall), until the contact or the episode's end
+        seen = len(p.msgs['camera'])
+        while not over(ep):
+            if len(p.msgs['camera']) > seen:
+                seen = len(p.msgs['camera'])
+                v, w = heading_controller(p)
+                if abs(w) < 0.1 and v > 0:
+                    break
+                command(0.0, w)
+            p.spin_once()
+        while not (hit(ep) or over(ep)):
+            command(-0.8, 0.0)
+            p.spin_for(0.02)
         if hit(ep):
             break
-    assert hit(ep), 'no collision backing away, in three episodes'
-    drive(p, -0.8, 0.0, 1.0)                  # keep pressing: 5 s of clock
-    hits = [r for _, r, _ in _episode_rewards(p, ep) if r < 0]
-    assert hits == [pytest.approx(-0.1)], hits
-    touching = [m for m in p.msgs['wheels'][-40:]]
-    assert all(abs(sum(m.velocity)) < 0.8 for m in touching[-10:]), 'pressed: it does not move'
+    assert hit(ep), 'no collision backing away, in six episodes'
+    # keep pressing for 40 more wheel readings of this episode (2 s of clock), or to its end
+    n = len(p.msgs['wheels'])
+    while len(p.msgs['wheels']) < n + 40 and not over(ep):
+        command(-0.8, 0.0)
+        p.spin_for(0.02)
+    assert p.spin_until(lambda: over(ep), TIME_LIMIT / SPEED * 4 + 60)
+    assert p.spin_until(lambda: any(e[1] != 'start' and int(e[2]['episode']) == ep
+                                    for e in events(p)), 60)
+    t_end = next(e[0] for e in events(p) if e[1] != 'start' and int(e[2]['episode']) == ep)
+    assert p.spin_until(lambda: any(t >= t_end - 1e-6 for t, _, _ in _episode_rewards(p, ep)),
+                        60)
+    hits = [(t, r) for t, r, _ in _episode_rewards(p, ep) if r < 0]
+    assert [r for _, r in hits] == [pytest.approx(-0.1)], hits
+    # pressed against it from two ticks after the contact to the episode's end: it does not
+    # move (the executed wheels, by their stamps)
+    pressed = [m for m in p.msgs['wheels'] if hits[0][0] + 2 * TICK <= stamp(m) <= t_end]
+    assert all(abs(sum(m.velocity)) < 0.8 for m in pressed), 'pressed: it does not move'
 
 
 def test_qos_and_the_reset_service(robot):
