@@ -60,7 +60,6 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
 from clis_learner.core.bag import BagError, message_definition
-from clis_learner.core.config import ClisParams
 from clis_learner.recorder_node import EXCLUDED, GRAPH_TOPICS, LATCHED_TOPICS, message_class
 from cr_sim import conversions as rconv
 
@@ -100,7 +99,7 @@ class FoxgloveNode(GraphNode):
     control_path = False                    # a viewer: never real-time
 
     def __init__(self) -> None:
-        super().__init__('foxglove', clis_cls=ClisParams)
+        super().__init__('foxglove')        # the modules' clis.yaml sections (no scipy)
         import foxglove  # only here: the rest of the package runs without it
 
         self.fox = foxglove
