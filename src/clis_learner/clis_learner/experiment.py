@@ -5,10 +5,11 @@ runner (:mod:`clis_learner.core.runner`), then evaluation episodes from each sta
 learning off. Runs go to parallel worker processes on this machine (``--backend process``) or
 to Ray tasks (``--backend ray``: a local Ray instance, or a cluster with ``--address``; see
 docs/scale.md); each run's results are written atomically to ``OUT/runs/`` as soon as it
-finishes, so an interrupted experiment loses only the runs in flight and ``--resume`` continues
-it, with either backend. A run's results are the same whichever backend ran it. At the end
-the runs are merged into ``episodes.csv``, ``eval.csv``, ``summary.json`` and the figures
-(``fig3a.png`` ...).
+finishes, so an interrupted experiment (Ctrl-C: one line, exit 130) loses only the runs in
+flight and ``--resume`` continues it, with either backend; it reuses a saved run only if it was
+made with the same settings (spec, parameter hash, arena), else it stops saying what differs.
+A run's results are the same whichever backend ran it. At the end the runs are merged into
+``episodes.csv``, ``eval.csv``, ``summary.json`` and the figures (``fig3a.png`` ...).
 
 A condition is a name (``innate``, ``view``, ``place``, ``sync``, ``async``) optionally followed
 by parameter overrides of ``config/clis.yaml``, ``@key=value`` each, so that variants run side by

@@ -373,7 +373,7 @@ def run_curve(result, path: Path) -> None:
     if n_blocks:
         rate = np.array(result.success_curve()) / result.block
         ax.plot(np.arange(1, n_blocks + 1) * result.block, rate, 's', color='tab:red', ms=7,
-                label=f'block of {result.block} episodes')
+                label=f'block of {result.block} episodes (at its last)')
     ax.set_xlim(0.5, n + 0.5)
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel('episode')
@@ -403,7 +403,8 @@ def run_selection(result, path: Path) -> None:
             ax.plot(np.arange(1, n_blocks + 1) * result.block,
                     result.selection_shares()[:, k], 's', color=colour, mec='k', ms=7)
     if n_blocks:
-        ax.plot([], [], 's', color='white', mec='k', label=f'block of {result.block} episodes')
+        ax.plot([], [], 's', color='white', mec='k',
+                label=f'block of {result.block} episodes (at its last)')
     ax.plot([], [], '.', color='gray', alpha=0.5, label='one episode')
     ax.set_xlim(0.5, n + 0.5)
     ax.set_ylim(-0.05, 1.05)
