@@ -251,12 +251,14 @@ class LearnerNode(GraphNode):
                 'do not publish yet; column held_steps of episodes.csv)')
         if closed.learned:
             if self.out is not None:
+                # the row first: stopped between the two, the checkpoint is the episode before
+                # and `clis run --resume` drops the row and runs the episode again (the other
+                # way round the row would be lost)
+                self._append_csv(closed.row)
                 save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,
                                 {'version': self.version, 'episode': closed.episode,
                                  'condition': self.graph.condition, 'seed': self.graph.seed})
             self._publish_params(closed.t_end)
-            if self.out is not None:
-                self._append_csv(closed.row)
         self._progress(closed.row, closed.t_end)
         mark('learner_closed1', closed.t_end)
 
