@@ -286,13 +286,14 @@ def test_episode_row_from_memory():
     assert acting_shares(mem).tolist() == pytest.approx([1 / 3, 2 / 3])
     diag = {'view': {'c_final': 1e-5, 'c_median': 1.0, 'ess': 1.0, 'rho_mean': 1.0,
                      'delta_abs_mean': 0.0, 'grad_norm': 0.0, 'n_steps': 6.0,
-                     'on_policy': 0.0}}
+                     'on_policy': 0.0, 'c_max': 0.5, 'grow_share': 0.25}}
     row = episode_row(mem, ['innate', 'view'], np.array([0.4, 0.6]), np.array([1.0, 0.0]),
                       diag, 'A')
     assert row['reached'] == 1 and row['duration'] == 3.0 and row['collisions'] == 1
     assert row['ret'] == pytest.approx(0.9) and row['behaviour'] == 'view'
     assert row['p_view'] == 0.6 and row['v_innate'] == 1.0
     assert row['log10c_view'] == pytest.approx(-5.0) and 'c_final_innate' not in row
+    assert row['c_max_view'] == 0.5 and row['grow_share_view'] == 0.25
 
 
 # ---------------------------------------------------------------------------- lockstep cores
