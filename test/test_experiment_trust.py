@@ -26,6 +26,18 @@ TINY = ['--conditions', 'view', '--episodes', '2', '--block', '2', '--seeds', '1
         '--train-start', 'starts']
 
 
+@pytest.fixture(scope='module', autouse=True)
+def own_config(tmp_path_factory):
+    """A copy of config/ for this module: an edit of the working tree's between the tiny run
+    and a --resume of it would change the parameter hash, which --resume rightly refuses."""
+    from cr_sim.core.params import config_dir
+    copy = tmp_path_factory.mktemp('config') / 'config'
+    shutil.copytree(config_dir(), copy)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv('CLIS_CONFIG_DIR', str(copy))
+        yield copy
+
+
 @pytest.fixture(scope='module')
 def tiny(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp('tiny') / 'exp'
