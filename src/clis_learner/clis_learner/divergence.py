@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 from pathlib import Path
 import sys
@@ -43,12 +44,18 @@ def _float(v: str) -> float:
 
 
 def load_train_rows(out: Path) -> list[dict[str, str]]:
-    """The learning episodes of ``OUT/episodes.csv``."""
+    """The learning episodes of ``OUT/episodes.csv``, or of the runs finished so far
+    (``OUT/runs/*.json``) while the experiment is still running."""
     path = Path(out) / 'episodes.csv'
-    if not path.is_file():
-        raise FileNotFoundError(f'{path}: no such file (a clis experiment folder?)')
-    with open(path, newline='') as f:
-        return [r for r in csv.DictReader(f) if r.get('phase', 'train') == 'train']
+    if path.is_file():
+        with open(path, newline='') as f:
+            return [r for r in csv.DictReader(f) if r.get('phase', 'train') == 'train']
+    runs = sorted(Path(out).glob('runs/*.json'))
+    if not runs:
+        raise FileNotFoundError(f'{path}: no such file, and no runs/*.json (a clis experiment '
+                                'folder?)')
+    return [{k: str(v) for k, v in e.items()} for p in runs
+            for e in json.loads(p.read_text())['episodes']]
 
 
 def divergence_rows(rows: list[dict[str, str]]) -> list[dict[str, float | str]]:
