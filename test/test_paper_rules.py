@@ -30,6 +30,19 @@ def log_pi(u, mean_ms, sigma):
     return -math.log(2.0 * math.pi * sigma ** 2) - float(r @ r) / (2.0 * sigma ** 2)
 
 
+def fd_gradient(f, W_ms, b, h=1e-6):  # noqa: N803
+    """Central finite differences of ``f(W_ms)`` in each entry of ``W_ms`` (2, n) at the
+    features ``b``'s nonzero entries (the others do not change the mean ``W_ms b``)."""
+    grad = np.zeros_like(W_ms)
+    for a in range(2):
+        for j in np.flatnonzero(b > 1e-12):
+            Wp, Wm = W_ms.copy(), W_ms.copy()  # noqa: N806
+            Wp[a, j] += h
+            Wm[a, j] -= h
+            grad[a, j] = (f(Wp) - f(Wm)) / (2 * h)
+    return grad
+
+
 def one_step(view, b, u, r, behaviour='view'):
     """A one-decision episode of the view module: features ``b``, action ``u``, reward ``r``
     at the end of its period."""
@@ -60,15 +73,8 @@ def test_step_of_9_is_the_finite_difference_gradient_of_ln_pi_in_m_per_s(paper):
     u = np.array([0.12, -0.05])
     r = 0.7
     W_ms = view.v_max * view.W  # noqa: N806 - the paper's W_i [m/s per unit feature]
-    # central finite differences of ln pi in W_i (m/s), at the features' nonzero entries
-    h = 1e-6
-    grad = np.zeros_like(W_ms)
-    for a in range(2):
-        for j in np.flatnonzero(b > 1e-12):
-            Wp, Wm = W_ms.copy(), W_ms.copy()  # noqa: N806
-            Wp[a, j] += h
-            Wm[a, j] -= h
-            grad[a, j] = (log_pi(u, Wp @ b, view.sigma) - log_pi(u, Wm @ b, view.sigma)) / (2 * h)
+    # central finite differences of ln pi in W_i (m/s)
+    grad = fd_gradient(lambda W: log_pi(u, W @ b, view.sigma), W_ms, b)  # noqa: N803
     before = view.W.copy()
     Learner([view], paper).learn(one_step(view, b, u, r))
     step_ms = view.v_max * (view.W - before)          # the change of W_i in m/s
@@ -106,14 +112,7 @@ def test_expected_update_on_a_one_step_gaussian_bandit_is_alpha_grad_j(paper):
         return -(float((mu - u_star) @ (mu - u_star)) + 2.0 * sigma ** 2)
 
     W_ms = view.v_max * view.W  # noqa: N806
-    h = 1e-6
-    grad = np.zeros_like(W_ms)
-    for a in range(2):
-        for j in np.flatnonzero(b > 1e-3):
-            Wp, Wm = W_ms.copy(), W_ms.copy()  # noqa: N806
-            Wp[a, j] += h
-            Wm[a, j] -= h
-            grad[a, j] = (J(Wp) - J(Wm)) / (2 * h)
+    grad = fd_gradient(J, W_ms, b)
     rng = np.random.default_rng(2)
     learner = Learner([view], paper)
     W0 = view.W.copy()  # noqa: N806
