@@ -8,6 +8,13 @@ subscribes to every channel the server advertises and decodes each message with 
 every channel has messages that decode, each schema is the bag's text, the sim-time stamps of
 ``/clock`` never go back, the derived success rate agrees with the run's ``episodes.csv``, and the
 server listens on 127.0.0.1 only (``/proc/net/tcp*`` of the node's own sockets).
+
+The run also records its bag (``--record``: every message of every topic, as published) and
+serves the view with ``foxglove.max_rate`` lowered to :data:`MAX_RATE` (``--params``), so that the
+decimation shows at any speed of the graph: a decimated topic's messages arrive as published,
+in sim-time order, a subset of the bag's; every message of the other topics arrives (the bag's,
+from the first one the client got to the last; the learner's progress of every episode of
+``episodes.csv``, the episode events of each).
 """
 
 from __future__ import annotations
@@ -22,8 +29,9 @@ import subprocess
 import sys
 import time
 
-from clis_learner.core.bag import message_definition
-from clis_learner.foxglove_node import PATH_TOPIC, SUCCESS_TOPIC, layout_json
+from clis_learner.core.bag import BagReader, message_definition
+from clis_learner.foxglove_node import CONFIG_FILE, PATH_TOPIC, SUCCESS_TOPIC, layout_json
+from cr_sim.core.params import config_dir, ros_parameters
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 import pytest
@@ -41,8 +49,20 @@ OFFERED = [SUBPROTOCOL, 'foxglove.websocket.v1']
 EXPECTED = {'/clock', '/odom', '/arena', '/markers', '/reward', '/episode', '/cmd_vel',
             '/arbiter/selection', '/arbiter/action', '/place/belief', '/learner/progress',
             PATH_TOPIC, SUCCESS_TOPIC}
-LISTEN = '0A'
-UNKNOWN = 'Unknown channel ID: '                                   # TCP_LISTEN in /proc/net/tcp
+LISTEN = '0A'                                                      # TCP_LISTEN
+#: foxglove.max_rate of the test's run [1/s wall]: a few messages per wall second, fewer than
+#: the sim's 20 Hz ticks even at a real-time factor of 1 (the default, 30, is for the app).
+MAX_RATE = 2.0
+#: The topics forwarded at most ``foxglove.max_rate`` per wall second (the shipped config).
+DECIMATED = frozenset('/' + t.strip().lstrip('/') for t in ros_parameters(
+    config_dir() / CONFIG_FILE, '/**')['foxglove']['decimated'].split(',') if t.strip())
+#: Transient-local topics (a late subscriber gets their last messages again).
+LATCHED = frozenset({'/episode', '/learner/progress', '/innate/params', '/view/params',
+                     '/place/params', '/arena'})
+#: Topics of which every message is served (low rate or transient local).
+EVERY = ('/arbiter/selection', '/place/belief', '/episode', '/learner/progress',
+         '/innate/params', '/view/params', '/place/params', '/arena')
+UNKNOWN = 'Unknown channel ID: '
 
 
 def free_port() -> int:
@@ -88,10 +108,14 @@ def node_pid(parent: int) -> int:
 def live(tmp_path_factory):
     """A 2-episode run with the live view, watched from its start to its end."""
     out = tmp_path_factory.mktemp('foxglove') / 'run'
+    bag = out.parent / 'bag'
+    params = out.parent / 'foxglove.yaml'
+    params.write_text(f'/**:\n  ros__parameters:\n    foxglove:\n      max_rate: {MAX_RATE}\n')
     port = free_port()
     proc = subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', 'run', '--out', str(out),
                              '--quiet', '--condition', 'async', '--episodes', '2', '--seed', '1',
-                             '--foxglove', str(port)],
+                             '--foxglove', str(port), '--record', str(bag),
+                             '--params', str(params)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     seen = {'channels': {}, 'messages': {}, 'listen': None, 'protocol': None, 'info': None,
             'other': [], 'retried': []}
@@ -148,8 +172,27 @@ def live(tmp_path_factory):
         if proc.poll() is None:
             proc.kill()
         text = proc.communicate()[0]
-    seen.update(code=code, text=text, out=out, port=port)
+    seen.update(code=code, text=text, out=out, port=port, bag=bag)
     return seen
+
+
+def received(live: dict) -> dict[str, list[bytes]]:
+    """Topic -> the payloads the client got, in order."""
+    return {live['channels'][cid]['topic']: [data for _, data in msgs]
+            for cid, msgs in live['messages'].items()}
+
+
+def recorded(live: dict) -> dict[str, list[bytes]]:
+    """Topic -> the payloads of the run's bag, in the order recorded (published)."""
+    out: dict[str, list[bytes]] = {}
+    for m in BagReader(live['bag']).messages():
+        out.setdefault(m.topic, []).append(bytes(m.data))
+    return out
+
+
+def stamp(msg) -> int:
+    t = msg.clock if hasattr(msg, 'clock') else msg.header.stamp
+    return t.sec * 10**9 + t.nanosec
 
 
 def decoded(live: dict) -> dict[str, list]:
@@ -248,3 +291,63 @@ def test_the_shipped_layout_is_the_models_and_shows_served_topics(repo):
                 walk(v)
     walk(json.loads(text))
     assert shown and shown <= EXPECTED, shown - EXPECTED
+
+
+def test_decimated_topics_arrive_as_published_in_sim_time_order(live):
+    assert live['code'] == 0, live['text']
+    got, bag, msgs = received(live), recorded(live), decoded(live)
+    shown = sorted(DECIMATED & set(got))
+    assert {'/clock', '/odom', '/reward', '/markers'} <= set(shown), shown
+    fewer = []
+    for topic in shown:
+        # a subsequence of the bag: nothing invented, repeated or reordered
+        it = iter(bag[topic])
+        assert all(any(d == b for b in it) for d in got[topic]), topic
+        stamps = [stamp(m) for m in msgs[topic]] if topic != '/markers' else [
+            stamp(m.markers[0]) for m in msgs[topic] if m.markers]
+        assert stamps == sorted(stamps), topic                  # sim time never goes back
+        if topic != '/clock':                                   # the clock holds at the gates
+            assert len(set(stamps)) == len(stamps), topic
+        # decimated: of the messages published from the first received to the last, fewer
+        first, last = bag[topic].index(got[topic][0]), bag[topic].index(got[topic][-1])
+        if len(got[topic]) < last - first + 1:
+            fewer.append(topic)
+    print('decimated, received / recorded:',
+          {t: f'{len(got[t])}/{len(bag[t])}' for t in shown})
+    assert set(fewer) >= {'/clock', '/odom', '/reward'}, fewer
+
+
+def test_every_message_of_the_low_rate_topics_arrives(live):
+    assert live['code'] == 0, live['text']
+    got, bag, msgs = received(live), recorded(live), decoded(live)
+    for topic in EVERY:
+        mine = got[topic]
+        assert mine, topic
+        first = min(bag[topic].index(d) for d in mine)
+        if topic in LATCHED:
+            # sent again to a late subscriber (the last foxglove.replay): once more, maybe
+            assert set(mine) == set(bag[topic][first:]), (topic, len(mine), len(bag[topic]))
+        else:                                   # subscribed when the client did: from then on
+            assert mine == bag[topic][first:], (topic, len(mine), len(bag[topic]), first)
+        if topic in ('/episode', '/learner/progress'):
+            assert first == 0, topic                            # all of the run's
+    # every episode of the run: its progress row and its start and end events
+    with open(live['out'] / 'episodes.csv', newline='') as fh:
+        rows = list(csv.DictReader(fh))
+    episodes = [r['episode'] for r in rows]
+    progress = {}
+    for m in msgs['/learner/progress']:
+        values = {kv.key: kv.value for kv in m.status[0].values}
+        if values.get('learned') == '1':
+            progress[str(int(float(values['episode'])))] = values
+    assert sorted(progress) == sorted(episodes), (progress.keys(), episodes)
+    for r in rows:
+        assert float(progress[r['episode']]['reached']) == float(r['reached'])
+    events = {(m.status[0].message, kv.value) for m in msgs['/episode']
+              for kv in m.status[0].values if kv.key == 'episode'}
+    for r in rows:                                      # the start and the end of each episode
+        assert ('start', r['episode']) in events, (r['episode'], events)
+        end = 'reached' if float(r['reached']) else 'timeout'
+        assert (end, r['episode']) in events, (r['episode'], events)
+    print('every message, received / recorded:',
+          {t: f'{len(got[t])}/{len(bag[t])}' for t in EVERY})

@@ -14,31 +14,42 @@ recorder records (:data:`clis_learner.recorder_node.GRAPH_TOPICS` at start, any 
 the graph as it appears, looked for every ``foxglove.discovery_period`` s; or only
 ``foxglove.topics``). The node subscribes *raw* to a topic only while a client subscribes to
 its channel (an open Foxglove costs the graph what its panels show), and always to the
-transient-local ones (whose last message a late client gets); it keeps the subscriptions out
-of the executor and takes every waiting
-message each ``foxglove.poll_period`` s of wall time (a take costs microseconds; a queue of
-``foxglove.depth`` holds what arrives meanwhile, and a view that falls behind loses the oldest
-messages, never slows a publisher). A topic's channel is advertised once the topic has a
+transient-local ones (whose last ``foxglove.replay`` messages a late client gets); it keeps the
+subscriptions out of the executor and takes the waiting messages each ``foxglove.poll_period``
+s of wall time (a take costs microseconds). A view that falls behind loses the oldest
+messages, never slows a publisher. A topic's channel is advertised once the topic has a
 publisher; each message is logged with its receive time (wall clock, as in the bags). A client
 that reads slower than the graph publishes loses the oldest of the ``foxglove.backlog``
 messages queued for it (the SDK's backpressure: the graph never waits for a viewer).
 
+Decimation: a person needs a few frames per wall second, and the graph runs the sim many times
+faster than real time. The high-rate topics of ``foxglove.decimated`` (every tick or decision
+of the sim: ``/clock``, ``odom``, ``reward``, ``wheels``, ``camera``, ``ir``, ``markers``,
+``cmd_vel``, the proposals, ``arbiter/action``) are forwarded at most ``foxglove.max_rate``
+per wall second each: their subscription is best effort with a queue of one, so DDS keeps the
+newest message for the view and drops the others before the node sees them (no resends by the
+publisher, no Python work per dropped message), and the node takes it at most once per
+``1 / max_rate`` s of wall time (on average: at the first poll after each multiple of that
+period). Every message of the other topics is forwarded (reliable, ``foxglove.depth`` deep):
+the arbiter's draws, the belief, the episode events, the parameters, the progress, the arena.
+The bags (``clis run --record``) keep everything.
+
 Two channels are derived for the layout:
 
 * ``/foxglove/path`` (``nav_msgs/msg/Path``): the robot's path since the current episode's
-  ``start`` (from ``odom``: a pose each ``foxglove.path_step`` m), sent every
-  ``foxglove.path_period`` s of wall time while it grows (decoded only while a client
-  subscribes to it);
+  ``start`` (from the ``odom`` messages forwarded: poses at least ``foxglove.path_step`` m
+  apart), sent every ``foxglove.path_period`` s of wall time while it grows (decoded only
+  while a client subscribes to it);
 * ``/foxglove/success`` (``geometry_msgs/msg/Vector3Stamped``, at each learned episode's end,
   from ``learner/progress``): ``x`` = share of the last ``foxglove.block`` learned episodes
   that reached the destination, ``y`` = learned episodes, ``z`` = 1 if this one reached it.
 
 Parameters: ``config/foxglove.yaml`` (section ``foxglove``; ``-p foxglove.KEY:=VALUE``).
 
-A client that subscribes late gets what a late ROS subscriber gets: the last message of each
-transient-local topic (the arena, the parameters, the episode events, the learner's progress)
-and of the derived channels is sent again when it subscribes (clients already subscribed get
-that message twice).
+A client that subscribes late gets what a late ROS subscriber gets: the last
+``foxglove.replay`` messages of each transient-local topic (the arena, the parameters, the
+episode events, the learner's progress) and the last message of the derived channels are sent
+again when it subscribes (clients already subscribed get them twice).
 """
 
 from __future__ import annotations
@@ -56,6 +67,7 @@ from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry, Path
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidHandle
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
@@ -71,6 +83,8 @@ HOST = '127.0.0.1'
 DEFAULT_PORT = 8765
 PATH_TOPIC = '/foxglove/path'
 SUCCESS_TOPIC = '/foxglove/success'
+#: The channels the live view computes (a late subscriber gets their last message again).
+DERIVED = frozenset({PATH_TOPIC, SUCCESS_TOPIC})
 #: The node's parameter file (section ``foxglove``).
 CONFIG_FILE = 'foxglove.yaml'
 
@@ -91,6 +105,12 @@ class FoxgloveParams:
     block: int = param(1, 100000, doc='learned episodes over which the success rate is taken')
     backlog: int = param(16, 10**6, doc='messages queued per client (a client that lags loses '
                                         'the oldest)')
+    max_rate: float = param(0.0, 1000.0, doc='[1/s wall] most messages forwarded per second of '
+                                             'each decimated topic (0 = all of them)')
+    replay: int = param(1, 1000, doc='last messages of a transient-local topic sent again to a '
+                                     'client that subscribes late')
+    decimated: str = param(doc='comma-separated high-rate topics forwarded at most max_rate '
+                               'per wall second (the newest message); the others: every message')
 
 
 class FoxgloveNode(GraphNode):
@@ -100,6 +120,10 @@ class FoxgloveNode(GraphNode):
 
     def __init__(self) -> None:
         super().__init__('foxglove')        # the modules' clis.yaml sections (no scipy)
+        if 'use_sim_time' not in self._parameter_overrides:
+            # wall time only (timers, log times): no /clock reader of its own, one less for the
+            # simulator to deliver to (/clock is subscribed to as a channel while shown)
+            self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, False)])
         import foxglove  # only here: the rest of the package runs without it
 
         self.fox = foxglove
@@ -111,9 +135,17 @@ class FoxgloveNode(GraphNode):
         self.types: dict[str, str] = {}                  # topic served -> its type
         self.subs: dict[str, tuple[str, Any]] = {}       # topic -> (type, subscription)
         self.odom = self.resolve_topic_name('odom')
+        #: decimated topic -> wall time (monotonic) of its next take; its gap between takes
+        self.due: dict[str, float] = {}
+        self.gap = 1.0 / self.cfg.max_rate if self.cfg.max_rate > 0 else 0.0
+        self.decimated = frozenset(self.resolve_topic_name(t.strip())
+                                   for t in self.cfg.decimated.split(',') if t.strip()) \
+            if self.gap else frozenset()
         self.dirty = False                               # a client (un)subscribed
         self.channels: dict[str, Any] = {}               # topic -> foxglove.Channel
-        self.last: dict[str, tuple[bytes, int]] = {}     # topic -> (payload, log time)
+        #: topic -> its last messages (payload, log time): ``foxglove.replay`` of a latched
+        #: topic (sent again to a late subscriber), one of the others
+        self.last: dict[str, deque[tuple[bytes, int]]] = {}
         self.by_id: dict[int, str] = {}                  # channel id -> topic
         self.counts: dict[str, int] = {}                 # topic -> messages forwarded
         #: topics whose last message a new subscriber gets (transient local; derived)
@@ -156,7 +188,7 @@ class FoxgloveNode(GraphNode):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.cfg.discovery_period, self._discover, clock=steady)
         self.create_timer(self.cfg.poll_period, self._poll, clock=steady)
-        self.clock_on_demand()                           # no wakeup per /clock message
+        self.clock_on_demand()                           # under sim time if told so
         self.defer_housekeeping()
         self.get_logger().info(f'Foxglove live view on ws://{HOST}:{self.server.port} '
                                '(layout: config/foxglove_layout.json, docs/foxglove.md)')
@@ -198,8 +230,21 @@ class FoxgloveNode(GraphNode):
                 self._subscribe(topic, msg_type)
             elif not need and topic in self.subs:
                 self.destroy_subscription(self.subs.pop(topic)[1])
+                self.due.pop(topic, None)
 
     def _subscribe(self, topic: str, msg_type: str) -> None:
+        """A raw subscription out of the executor. A decimated topic: best effort, a queue of
+        one (DDS keeps the newest message and drops the others for this reader: no resends by
+        the publisher, no Python work per dropped message); the others reliable (best effort
+        if a publisher offers only that), ``foxglove.depth`` deep, transient local if latched."""
+        if topic in self.decimated and topic not in self.latched:
+            qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
+                             durability=DurabilityPolicy.VOLATILE)
+            sub = self.create_subscription(message_class(msg_type), topic, lambda *_: None, qos,
+                                           raw=True, callback_group=self._polled)
+            self.subs[topic] = (msg_type, sub)
+            self.due[topic] = 0.0
+            return
         offered = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
         reliable = not any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered)
         qos = QoSProfile(
@@ -249,8 +294,13 @@ class FoxgloveNode(GraphNode):
         chan = self.channel(topic, msg_type)
         if chan is None:
             return
-        log_ns = max(log_ns, self.last.get(topic, (b'', 0))[1])   # never back in time
-        self.last[topic] = (data, log_ns)
+        last = self.last.get(topic)
+        if last is None:
+            keep = self.cfg.replay if topic in self.latched and topic not in DERIVED else 1
+            last = self.last[topic] = deque(maxlen=keep)
+        elif log_ns < last[-1][1]:
+            log_ns = last[-1][1]                         # never back in time
+        last.append((data, log_ns))
         self.counts[topic] = self.counts.get(topic, 0) + 1
         chan.log(data, log_time=log_ns)
 
@@ -264,7 +314,22 @@ class FoxgloveNode(GraphNode):
             self.dirty = False
             self._sync()
         batch = []
+        now = time.monotonic()
         for name, (typ, sub) in self.subs.items():
+            due = self.due.get(name)
+            if due is not None:                          # decimated: the newest, when due
+                if now < due:
+                    continue                             # DDS keeps only the newest meanwhile
+                try:
+                    with sub.handle:
+                        got = sub.handle.take_message(sub.msg_type, True)
+                except InvalidHandle:
+                    continue
+                if got is not None:                      # the next take, on a grid of 1/max_rate
+                    self.due[name] = max(due + self.gap, now - self.gap)
+                    batch.append((got[1].get('received_timestamp') or time.time_ns(),
+                                  name, typ, got[0]))
+                continue
             try:
                 with sub.handle:
                     while (got := sub.handle.take_message(sub.msg_type, True)) is not None:
@@ -282,12 +347,13 @@ class FoxgloveNode(GraphNode):
 
     def on_subscribe(self, channel_id: int) -> None:
         """A client subscribed to a channel (the server's thread, the subscription in place):
-        the last message of a latched topic, as DDS gives it to a late subscriber."""
+        the last messages of a latched topic (``foxglove.replay``; the last of a derived
+        channel), as DDS gives them to a late subscriber."""
         self.dirty = True
         topic = self.by_id.get(channel_id)
-        last = self.last.get(topic) if topic in self.latched else None
-        if last is not None:
-            self.channels[topic].log(last[0], log_time=last[1])
+        if topic in self.latched:
+            for data, log_ns in list(self.last.get(topic, ())):
+                self.channels[topic].log(data, log_time=log_ns)
 
     # ------------------------------------------------------------------ derived channels
 
