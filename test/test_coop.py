@@ -266,9 +266,11 @@ def test_experiment_preset_and_ablation_flags(tmp_path, capsys):
     assert code == 2 and '--ablation needs --preset' in capsys.readouterr().err
     code = clis(['experiment', '--out', str(tmp_path / 'x'), '--eval-every', '-1'])
     assert code == 2 and '--eval-every' in capsys.readouterr().err
-    out = tmp_path / 'abl'                            # the plan only: nothing to redraw
+    out = tmp_path / 'abl'                            # the plan, run on tiny jobs
     assert clis(['experiment', '--preset', 'improved', '--ablation', '--conditions', 'view',
-                 '--episodes', '50', '--seeds', '1', '--out', str(out), '--figures-only']) == 1
+                 '--episodes', '2', '--block', '2', '--seeds', '1', '--eval-every', '0',
+                 '--eval-episodes', '0', '--sim-set', 'episode.time_limit=1.0', '--quiet',
+                 '--workers', '1', '--out', str(out)]) == 0
     plan = json.loads((out / 'experiment.json').read_text())['overrides']
     labels = list(plan)
     assert labels[0] == 'improved:view' and labels[-1] == 'improved:async'
