@@ -6,8 +6,12 @@ Every figure is drawn from saved runs (:class:`clis_learner.core.runner.JobResul
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+import contextlib
 import os
 from pathlib import Path
+import signal
+import threading
 
 import matplotlib
 
@@ -416,6 +420,26 @@ def run_selection(result, path: Path) -> None:
     _save(fig, path)
 
 
+@contextlib.contextmanager
+def sigint_after() -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) that arrives inside the block and raise it as
+    :class:`KeyboardInterrupt` when the block is done: a KeyboardInterrupt raised inside
+    matplotlib's renderer comes out as another error (seen: ``ValueError: Invalid bounding
+    box``), a traceback instead of the one line of ``clis``. Outside the main thread (no
+    signal handlers there) the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if held:
+        raise KeyboardInterrupt
+
+
 def draw_all(out: Path, results, summary: dict) -> list[Path]:
     """Draw every figure into ``out``; return the files written. Interrupted (Ctrl-C) or
     failed, it closes the figures it opened."""
@@ -426,7 +450,8 @@ def draw_all(out: Path, results, summary: dict) -> list[Path]:
                          ('fig3bc.png', fig3bc), ('fig4.png', fig4),
                          ('fig4_modules.png', fig4_modules),
                          ('fig5.png', fig5), ('diagnostics.png', fig_diagnostics)):
-            fn(results, out / name)
+            with sigint_after():
+                fn(results, out / name)
             if (out / name).exists():
                 paths.append(out / name)
     except BaseException:
