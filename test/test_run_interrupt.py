@@ -1,6 +1,6 @@
 """``clis run`` interrupted (Ctrl-C) at random moments and resumed, into the same ``--out``.
 
-A tiny run (the innate module, 30 episodes of at most 4 s: a few wall seconds once up) is
+A tiny run (the innate module, 80 episodes of at most 4 s: a few wall seconds once up) is
 stopped with SIGINT :data:`INTERRUPTS` times at random moments (the first while it starts or
 after one or two learned episodes, the others after one to three more learned episodes, judged
 by its checkpoint, plus up to half a second), each time resumed from its checkpoint
@@ -33,9 +33,9 @@ import time
 
 import numpy as np
 
-EPISODES = 30
+EPISODES = 80
 PARAMS = '/**:\n  ros__parameters:\n    episode: {time_limit: 4.0, wander_time: 1.0}\n'
-INTERRUPTS = 4                     # at most 2 + 3 x 3 (+ 1 each) learned episodes < EPISODES
+INTERRUPTS = 4                     # each after <= 3 learned episodes (+ those a stop finishes)
 
 
 def start(out: Path, params: Path, episodes: int, *args: str) -> subprocess.Popen:
