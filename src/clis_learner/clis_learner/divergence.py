@@ -116,15 +116,19 @@ def plot(rows: list[dict[str, str]], path: Path, block: int = 50) -> None:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    labels = [lb for lb in dict.fromkeys(r['label'] for r in rows)
-              if sum(k.startswith('c_max_') for k in next(r for r in rows if r['label'] == lb))
-              > 1]
+    def n_modules(label: str) -> int:          # columns with values (a merged CSV has all)
+        first = next(r for r in rows if r['label'] == label)
+        return sum(k.startswith('c_max_') and v not in ('', 'nan', None)
+                   for k, v in first.items())
+
+    labels = [lb for lb in dict.fromkeys(r['label'] for r in rows) if n_modules(lb) > 1]
     if not labels:
         raise ValueError('no condition with several modules to draw')
     fig, axes = plt.subplots(1, len(labels), figsize=(5 * len(labels), 3.6), squeeze=False)
     for ax, label in zip(axes[0], labels):
         mine = [r for r in rows if r['label'] == label]
-        for m in [k[len('c_max_'):] for k in mine[0] if k.startswith('c_max_')]:
+        for m in [k[len('c_max_'):] for k, v in mine[0].items()
+                  if k.startswith('c_max_') and v not in ('', 'nan', None)]:
             pts = [(int(r['episode']), _float(r[f'c_max_{m}'])) for r in mine
                    if r.get('behaviour') != m and _float(r[f'c_max_{m}']) > 0.0]
             if not pts:
@@ -138,7 +142,8 @@ def plot(rows: list[dict[str, str]], path: Path, block: int = 50) -> None:
         ax.set_title(f'{label}: off-policy episodes')
         ax.set_xlabel('episode')
         ax.set_ylabel('log10 max_l c_l (median per block)')
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
