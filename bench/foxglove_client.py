@@ -78,22 +78,10 @@ def watch(port: int, seconds: float, wait: float = 120.0,
 def layout_topics() -> frozenset[str]:
     """The topics config/foxglove_layout.json shows (3D panels' topics, plotted paths)."""
     from pathlib import Path
-    shown = set()
 
-    def walk(node: object) -> None:
-        if isinstance(node, dict):
-            for k, v in node.items():
-                if k == 'topics' and isinstance(v, dict):
-                    shown.update(v)
-                elif k == 'value' and isinstance(v, str):
-                    shown.add(v.split('.')[0])
-                walk(v)
-        elif isinstance(node, list):
-            for v in node:
-                walk(v)
+    from clis_learner.foxglove_node import shown_topics
     path = Path(__file__).resolve().parent.parent / 'config' / 'foxglove_layout.json'
-    walk(json.loads(path.read_text()))
-    return frozenset(shown)
+    return shown_topics(json.loads(path.read_text()))
 
 
 def main() -> int:

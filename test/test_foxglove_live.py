@@ -30,7 +30,13 @@ import sys
 import time
 
 from clis_learner.core.bag import BagReader, message_definition
-from clis_learner.foxglove_node import CONFIG_FILE, PATH_TOPIC, SUCCESS_TOPIC, layout_json
+from clis_learner.foxglove_node import (
+    CONFIG_FILE,
+    PATH_TOPIC,
+    SUCCESS_TOPIC,
+    layout_json,
+    shown_topics,
+)
 from cr_sim.core.params import config_dir, ros_parameters
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
@@ -276,20 +282,7 @@ def test_the_shipped_layout_is_the_models_and_shows_served_topics(repo):
     text = (repo / 'config' / 'foxglove_layout.json').read_text()
     assert text == layout_json(), 'regenerate: python -c "from clis_learner.foxglove_node ' \
                                   'import layout_json; print(layout_json(), end=\'\')"'
-    shown = set()
-
-    def walk(node):
-        if isinstance(node, dict):
-            for k, v in node.items():
-                if k == 'topics' and isinstance(v, dict):
-                    shown.update(v)
-                elif k == 'value' and isinstance(v, str):
-                    shown.add(v.split('.')[0])
-                walk(v)
-        elif isinstance(node, list):
-            for v in node:
-                walk(v)
-    walk(json.loads(text))
+    shown = shown_topics(json.loads(text))
     assert shown and shown <= EXPECTED, shown - EXPECTED
 
 

@@ -490,6 +490,26 @@ def layout() -> Any:
         (0.45, split('column', (0.2, acting), (0.3, probs), (0.25, reward), (0.25, success)))))
 
 
+def shown_topics(layout: object) -> frozenset[str]:
+    """The topics a Foxglove layout (the parsed JSON of ``config/foxglove_layout.json``)
+    shows: its 3D panels' topics and the topics of its plotted message paths."""
+    shown: set[str] = set()
+
+    def walk(node: object) -> None:
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if k == 'topics' and isinstance(v, dict):
+                    shown.update(v)
+                elif k == 'value' and isinstance(v, str):
+                    shown.add(v.split('.')[0])
+                walk(v)
+        elif isinstance(node, list):
+            for v in node:
+                walk(v)
+    walk(layout)
+    return frozenset(shown)
+
+
 def layout_json() -> str:
     """:func:`layout` as the text of ``config/foxglove_layout.json`` (indented, one newline at
     the end)."""
