@@ -293,17 +293,20 @@ def test_decimated_topics_arrive_as_published_in_sim_time_order(live):
     assert {'/clock', '/odom', '/reward', '/markers'} <= set(shown), shown
     fewer = []
     for topic in shown:
-        # a subsequence of the bag: nothing invented, repeated or reordered
+        # the graph's own messages, in the order published: those the bag holds too (the
+        # recorder is a subscriber as well, and may miss some on a loaded host) are a
+        # subsequence of the bag, none repeated or reordered
+        held = [d for d in got[topic] if d in bag[topic]]
         it = iter(bag[topic])
-        assert all(any(d == b for b in it) for d in got[topic]), topic
+        assert held and all(any(d == b for b in it) for d in held), topic
         stamps = [stamp(m) for m in msgs[topic]] if topic != '/markers' else [
             stamp(m.markers[0]) for m in msgs[topic] if m.markers]
         assert stamps == sorted(stamps), topic                  # sim time never goes back
-        if topic != '/clock':                                   # the clock holds at the gates
-            assert len(set(stamps)) == len(stamps), topic
+        if topic in ('/odom', '/reward'):     # once per tick (the clock holds at the gates,
+            assert len(set(stamps)) == len(stamps), topic   # a module resends a proposal)
         # decimated: of the messages published from the first received to the last, fewer
-        first, last = bag[topic].index(got[topic][0]), bag[topic].index(got[topic][-1])
-        if len(got[topic]) < last - first + 1:
+        first, last = bag[topic].index(held[0]), bag[topic].index(held[-1])
+        if len(held) < last - first + 1:
             fewer.append(topic)
     print('decimated, received / recorded:',
           {t: f'{len(got[t])}/{len(bag[t])}' for t in shown})
