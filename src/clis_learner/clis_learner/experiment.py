@@ -438,12 +438,21 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
     ctx = mp.get_context('fork' if sys.platform.startswith('linux') else 'spawn')
     if ctx.get_start_method() == 'fork':
         warm_up(todo[0])          # compiled kernels loaded once, inherited by every worker
-    manager = SyncManager(ctx=ctx)
-    manager.start(_ignore_sigint)     # Ctrl-C is the main process's to handle (cli.main)
-    q = manager.Queue()
+    # a Ctrl-C while the manager and the pool are being made would leave a worker behind
+    # (the pool's with block, which terminates it, not entered yet): held until both exist
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        with ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1,
-                      initializer=_ignore_sigint) as pool:
+        manager = SyncManager(ctx=ctx)
+        manager.start(_ignore_sigint)     # Ctrl-C is the main process's to handle (cli.main)
+        q = manager.Queue()
+        pool = ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1,
+                        initializer=_ignore_sigint)
+    except BaseException:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        raise
+    try:
+        with pool:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})   # delivered here
             pending = [pool.apply_async(_worker, (spec, q)) for spec in todo]
             remap = {s.index: k for k, s in enumerate(todo)}
             while any(not p.ready() for p in pending) or not q.empty():
