@@ -55,6 +55,10 @@ def test_ctrl_c_during_an_experiment_stops_its_processes_with_one_line(tmp_path)
                              '--quiet', '--workers', '1', '--out', str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True,         # its own group, as a terminal's
+                            # a shell's Ctrl-C disposition, whatever this test process had
+                            # inherited or been left with (an ignored SIGINT is inherited
+                            # across exec, and Python then never raises KeyboardInterrupt)
+                            preexec_fn=_default_sigint,
                             env={**os.environ,               # the code this test imports
                                  'PYTHONPATH': os.pathsep.join(p for p in sys.path if p)})
     try:
@@ -74,6 +78,12 @@ def test_ctrl_c_during_an_experiment_stops_its_processes_with_one_line(tmp_path)
     while _group(proc.pid) and time.monotonic() < deadline:    # on a loaded host
         time.sleep(0.1)
     assert not _group(proc.pid), 'a worker or the manager was left behind'
+
+
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT at its default disposition and not blocked."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def _group(pgid: int) -> list[int]:
