@@ -101,6 +101,7 @@ PRESET_GROUPS: dict[str, tuple[str, ...]] = {
     'selection': ('arbiter.rule', 'common.beta', 'arbiter.scale_min'),
     'steps': ('learner.step_norm', 'learner.policy_step', 'learner.max_mean_step',
               'view.policy.alpha', 'place.policy.alpha'),
+    'place_rbf': ('place.features.kind',),
 }
 
 
