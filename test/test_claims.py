@@ -57,4 +57,34 @@ def test_claims_against_hand_figures(tmp_path):
     assert sorted(load_runs(tmp_path)) == ['async', 'innate', 'view']
     assert main([str(tmp_path)]) == 0
     assert main([str(tmp_path / 'nothing')]) == 2
+
+
+def test_a_preset_folder_is_read_and_a_mixed_one_refused(tmp_path, capsys):
+    flat = [0.6] * 11
+    (tmp_path / 'runs').mkdir()
+    for s in range(3):
+        for label, preset in (('improved:innate', 'improved'),
+                              ('improved:async@learner.imitation=1.0', 'improved')):
+            r = run('innate', s, flat)
+            r.spec.update(label=label, preset=preset, overrides={'common.beta': 5.0})
+            (tmp_path / 'runs' / f'{label}__s{s}.json').write_text(json.dumps(asdict(r)))
+    runs = load_runs(tmp_path)
+    assert sorted(runs) == ['innate'] and len(runs['innate']) == 3    # the @ row is not
+    assert main([str(tmp_path)]) == 0
+    assert 'Preset `improved`, arena `arena.yaml`' in capsys.readouterr().out
+    r = run('view', 0, flat)
+    (tmp_path / 'runs' / 'view__s0.json').write_text(json.dumps(asdict(r)))   # paper
+    with pytest.raises(ValueError, match='presets improved, paper'):
+        load_runs(tmp_path)
+    assert main([str(tmp_path)]) == 2
+
+
+def test_async_is_judged_against_every_single_module():
+    flat, low = [0.6] * 11, [0.1] * 11
+    runs = {'innate': [run('innate', s, flat) for s in range(3)],
+            'view': [run('view', s, low) for s in range(3)],
+            'async': [run('async', s, [0.7] * 11) for s in range(3)]}
+    rows = {a: (b, c) for a, b, c in claims(runs)}
+    assert rows['Async ends best (end, async - best single = innate)'][1] == 'yes'
+    assert rows['Async ends above view (end, async - view)'] == ('60.0 ± 0.0%', 'yes')
     assert np.isfinite(mean_ci([0.1, 0.2, 0.4])[1])

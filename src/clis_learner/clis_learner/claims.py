@@ -1,7 +1,8 @@
 """``python -m clis_learner.claims OUT``: the paper's Fig. 3a/3b/3c/5 claims, measured.
 
 Reads the runs of a ``clis experiment`` folder (``OUT/runs/*.json``, one per condition and
-seed; the conditions ``innate``, ``view``, ``place``, ``sync`` and ``async`` without overrides)
+seed; the conditions ``innate``, ``view``, ``place``, ``sync`` and ``async`` without ``@``
+overrides, in one preset: ``paper`` or e.g. ``improved``, whose labels are ``improved:view``...)
 and prints one Markdown table: each claim of the paper's Sec. IV, the number measured here as
 the mean over seeds with its 95% t-interval, and whether it holds (the interval on the right
 side of the claim). The Fig. 3a numbers are the A-E evaluation (learning off, every
@@ -37,13 +38,24 @@ WINDOW = 200
 
 
 def load_runs(out: Path) -> dict[str, list[JobResult]]:
-    """``{condition: [run per seed]}`` of the paper's five conditions without overrides."""
+    """``{condition: [run per seed]}`` of the paper's five conditions without ``@`` overrides
+    (a preset's own changes, e.g. ``improved:view``, are part of the condition).
+
+    Raises
+    ------
+    ValueError
+        The folder mixes presets: its claims would compare runs of different rules.
+    """
     runs: dict[str, list[JobResult]] = defaultdict(list)
+    presets = set()
     for path in sorted(Path(out, 'runs').glob('*.json')):
         r = JobResult.load(path)
         label = r.spec['label'].split(':')[-1]
-        if label in PAPER and not r.spec.get('overrides'):
+        if label in PAPER:
             runs[label].append(r)
+            presets.add(r.spec.get('preset') or 'paper')
+    if len(presets) > 1:
+        raise ValueError(f'{out}: runs of presets {", ".join(sorted(presets))}: one per folder')
     for rs in runs.values():
         rs.sort(key=lambda r: r.spec['seed'])
     return dict(runs)
@@ -179,6 +191,11 @@ def claims(runs: dict[str, list[JobResult]]) -> list[tuple[str, str, str]]:
         m, h = mean_ci(_paired(rs, runs[best], lambda r: window(r, 'end')))
         rows.append((f'{c.capitalize()} ends best (end, {c} - best single = {best})',
                      _fmt(m, h, pct=True), verdict(m, h, True)))
+        for other in singles:
+            if other != best:
+                m, h = mean_ci(_paired(rs, runs[other], lambda r: window(r, 'end')))
+                rows.append((f'{c.capitalize()} ends above {other} (end, {c} - {other})',
+                             _fmt(m, h, pct=True), verdict(m, h, True)))
         for mod in ('view', 'place'):
             if runs.get(mod) and all(mod in r.solo for r in rs):
                 m, h = mean_ci(_paired(rs, runs[mod],
@@ -215,7 +232,10 @@ def claims(runs: dict[str, list[JobResult]]) -> list[tuple[str, str, str]]:
 
 def markdown(rows: list[tuple[str, str, str]], runs: dict[str, list[JobResult]]) -> str:
     n = ', '.join(f'{c} {len(rs)}' for c, rs in runs.items())
-    out = [f'Seeds: {n}. Mean ± 95% t-interval over seeds (none below 3 seeds).', '',
+    spec = next(iter(runs.values()))[0].spec
+    arena = Path(spec.get('arena') or 'config/arena.yaml').name
+    out = [f"Preset `{spec.get('preset') or 'paper'}`, arena `{arena}`. Seeds: {n}. "
+           'Mean ± 95% t-interval over seeds (none below 3 seeds).', '',
            '| claim (paper, Sec. IV) | measured | holds? |', '|---|---|---|']
     out += [f'| {a} | {b} | {c} |' for a, b, c in rows]
     return '\n'.join(out)
@@ -226,9 +246,13 @@ def main(args: list[str] | None = None) -> int:
                                 description=__doc__.split('\n\n')[0])
     p.add_argument('out', type=Path, help='a clis experiment folder (its runs/)')
     a = p.parse_args(args)
-    runs = load_runs(a.out)
+    try:
+        runs = load_runs(a.out)
+    except ValueError as exc:
+        print(f'claims: {exc}', file=sys.stderr)
+        return 2
     if not runs:
-        print(f'claims: no run of {", ".join(PAPER)} without overrides in {a.out}/runs',
+        print(f'claims: no run of {", ".join(PAPER)} without @ overrides in {a.out}/runs',
               file=sys.stderr)
         return 2
     print(markdown(claims(runs), runs))
