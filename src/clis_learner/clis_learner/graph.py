@@ -25,10 +25,15 @@ container); docs/benchmarks.md compares both.
 
 Every input (arena, parameter files, checkpoint, device, output folder...) is checked before
 any process starts and before anything is written: a bad one stops ``clis run`` with one line
-naming the option (exit code 2). ``--resume CKPT`` continues the run of CKPT: its episodes are
-numbered on from the checkpoint's, with random draws of their own (the simulator's
-``node.first_episode``; the modules and the arbiter draw from (seed, episode)), and into the
-same ``--out`` the table ``episodes.csv`` keeps the rows up to the checkpoint's episode.
+naming the option (exit code 2). ``--resume CKPT`` continues the run of CKPT as if it had not
+stopped: its episodes are numbered on from the checkpoint's (the simulator's
+``node.first_episode``), every node draws an episode's randomness from (seed, episode), the
+simulator's robot and clock start where the checkpoint's episode left them (its ``sim_state``,
+``node.resume_state``), and into the same ``--out`` the table ``episodes.csv`` keeps the rows
+up to the checkpoint's episode: a run stopped and resumed any number of times ends with the
+table and the checkpoint of the run that was not, byte for byte (test_run_interrupt.py). The
+learner learns ``--episodes`` episodes, not one more that ended while the graph stopped
+(``learner_node.episodes``).
 
 Exit codes: 0 done; 1 a child died and could not be restarted; 2 bad arguments or a bad
 parameter (the child's message names the key); 3 the graph did not come up;
@@ -132,12 +137,15 @@ class GraphPlan:
 
 def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str = '',
                arena: str = '', robot: str = 'sim', device: str = 'emulator',
-               record: str = '', realtime: int = 0, first_episode: int = 1) -> GraphPlan:
+               record: str = '', realtime: int = 0, first_episode: int = 1,
+               resume_state: str = '', learn_until: int = 0) -> GraphPlan:
     """The nodes of ``condition``, with the parameters ``clis run`` gives each;
     ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
     ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
     :func:`cr_sim.lifecycle.realtime`); ``first_episode`` > 1: the number of the simulator's
-    first episode (a resumed run)."""
+    first episode (a resumed run), ``resume_state``: where its robot and clock stood (the
+    checkpoint's ``sim_state``); ``learn_until`` > 0: the learner learns no episode that
+    starts once that many are learned in all (``learner_node.episodes``)."""
     from clis_modules.core.modules import condition_periods
 
     from clis_learner.core.config import load_clis_params
@@ -150,7 +158,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
             **graph, 'recorder.path': record, 'recorder.on_exists': 'number'},
             stop_last=True))
     plan.children.append(Child('learner', 'clis_learner', 'learner', {
-        **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume},
+        **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume,
+        **({'learner_node.episodes': learn_until} if learn_until > 0 else {})},
         restart='resume'))
 
     def priority(key: str, node: str) -> dict:
@@ -177,6 +186,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
         **({'node.first_episode': first_episode} if first_episode > 1 else {}),
+        **({'node.resume_state': resume_state} if resume_state else {}),
         **priority('node.realtime_priority', 'sim')},
         restart='never'))
     return plan
@@ -504,7 +514,8 @@ def _one_line_errors(parser: argparse.ArgumentParser) -> None:
 def _check_args(args: argparse.Namespace) -> str | None:
     """Every option checked before anything starts or is written: the first error, one line
     naming the option, or None. Sets ``args.first_episode`` (1, or the episode after the
-    checkpoint's)."""
+    checkpoint's), ``args.sim_state`` (the checkpoint's ``sim_state``, or '') and
+    ``args.version`` (the checkpoint's, or 0)."""
     if args.episodes < 1:
         return f'--episodes {args.episodes}: must be at least 1'
     if not 0.0 <= args.speed <= 1000.0:
@@ -556,7 +567,7 @@ def _check_args(args: argparse.Namespace) -> str | None:
         except (ConfigError, ValueError) as exc:
             return f'--params {f}: {exc}'
         clis_keys.update(flat)
-    args.first_episode = 1
+    args.first_episode, args.sim_state, args.version = 1, '', 0
     if args.resume is None:
         return None
     from clis_modules.core.modules import arena_map, make_modules
@@ -579,6 +590,8 @@ def _check_args(args: argparse.Namespace) -> str | None:
             return f'--resume {args.resume}: a checkpoint of --{key} {extra[key]}, not ' \
                    f'{getattr(args, key)}'
     args.first_episode = int(extra.get('episode', 0)) + 1
+    args.sim_state = str(extra.get('sim_state', ''))
+    args.version = int(extra.get('version', 0))
     return None
 
 
@@ -706,7 +719,7 @@ def main(args: argparse.Namespace) -> int:
                       str(args.resume.resolve()) if args.resume else '', args.arena,
                       args.robot, args.device,
                       str(args.record.resolve()) if args.record else '', args.realtime,
-                      args.first_episode)
+                      args.first_episode, args.sim_state, args.version + args.episodes)
     if args.foxglove is not None:                    # the live view (docs/foxglove.md)
         from clis_learner.foxglove_node import plan_live_view
         if error := plan_live_view(plan, args):

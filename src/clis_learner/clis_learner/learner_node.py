@@ -13,13 +13,15 @@ buffer is cut into that episode's
 memory and the same :class:`~clis_learner.core.learner.Learner` as the headless runner resamples
 it to each module's grid and applies (7)-(9), (11).
 
-After each learned episode, in this order: the parameters are checkpointed atomically
-(``OUT/checkpoint.npz``), published on ``<module>/params`` (transient local, so a module that
-restarts gets them at once; ``version`` = episodes learned), the episode's row is appended to
-``OUT/episodes.csv`` and published on ``~/progress`` (diagnostic_msgs/DiagnosticArray,
-transient local: episode, reached, return, who acted, Pr(i|x_0), diagnostics). An episode whose
-start the learner did not see (it started late or was restarted) is not learned; its progress
-says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint. The learner
+After each learned episode, in this order: the episode's row is appended to
+``OUT/episodes.csv``, the parameters are checkpointed atomically (``OUT/checkpoint.npz``, with
+the simulator's ``resume_state`` of the episode's end: where ``clis run --resume`` goes on),
+published on ``<module>/params`` (transient local, so a module that restarts gets them at once;
+``version`` = episodes learned), and the row is published on ``~/progress``
+(diagnostic_msgs/DiagnosticArray, transient local: episode, reached, return, who acted,
+Pr(i|x_0), diagnostics). An episode whose start the learner did not see (it started late or
+was restarted), or that starts once ``learner_node.episodes`` are learned, is not learned; its
+progress says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint. The learner
 reports ready (progress of episode 0, which a simulator with ``node.wait_for_learner``
 waits for before the first episode) once DDS has found a publisher of every stream it
 reads, or after ``learner_node.connect_timeout`` s.
@@ -77,6 +79,9 @@ class LearnerNodeParams:
     close_grace: float = param(0.0, 10.0, doc='wall seconds to wait for records in flight')
     connect_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for a publisher of '
                                    'every stream before reporting ready')
+    episodes: int = param(0, 2**31 - 1, doc='learn until the parameters reach this version '
+                          '(episodes learned in all), then learn no episode that starts '
+                          'after; 0 = no limit')
 
 
 class LearnerNode(GraphNode):
@@ -98,6 +103,7 @@ class LearnerNode(GraphNode):
             version = int(meta['extra'].get('version', 0))
             self.get_logger().info(f'resumed from {self.cfg.resume}: version {version}')
         self.record_wall = -math.inf            # wall time the last record arrived
+        self.resume_states: dict[int, str] = {}  # the simulator's, at each episode's end
         self._held_said = False
         self.stream = EpisodeStream(self.modules, self.clis, self.graph.condition,
                                     self.graph.seed, version)
@@ -200,7 +206,11 @@ class LearnerNode(GraphNode):
             closed = self.stream.start(t, index, values.get('start', ''))
             if closed is not None:
                 self._closed(closed)
+            if self.cfg.episodes and self.version >= self.cfg.episodes:
+                self.stream.episode = None        # the run has learned its episodes
         elif event in END_EVENTS:
+            if 'resume_state' in values:
+                self.resume_states[index] = values['resume_state']
             now = time.monotonic()
             skipped = self.stream.end(t, index, event, now + self.cfg.close_timeout,
                                       now + self.cfg.close_grace,
@@ -255,9 +265,14 @@ class LearnerNode(GraphNode):
                 # and `clis run --resume` drops the row and runs the episode again (the other
                 # way round the row would be lost)
                 self._append_csv(closed.row)
+                # and where the simulator stood: a resumed run goes on from there (graph.py)
+                sim = self.resume_states.get(closed.episode)
                 save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,
                                 {'version': self.version, 'episode': closed.episode,
-                                 'condition': self.graph.condition, 'seed': self.graph.seed})
+                                 'condition': self.graph.condition, 'seed': self.graph.seed,
+                                 **({'sim_state': sim} if sim else {})})
+            self.resume_states = {k: v for k, v in self.resume_states.items()
+                                  if k > closed.episode}
             self._publish_params(closed.t_end)
         self._progress(closed.row, closed.t_end)
         mark('learner_closed1', closed.t_end)

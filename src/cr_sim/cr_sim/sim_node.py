@@ -86,8 +86,13 @@ class SimNodeParams:
                                    'latency at 0 us (idle cores poll). Fail-soft without the '
                                    'right to it')
     first_episode: int = param(1, 2**31 - 1, doc='number of the first episode; > 1 resumes a '
-                               'run (clis run --resume): its generators are then drawn from '
-                               '(seed, stream, first_episode), not those of episode 1 again')
+                               'run (clis run --resume). Each episode draws from (seed, stream, '
+                               'its number), so a resumed run draws what the run it continues '
+                               'would have')
+    resume_state: str = param(doc="'' or the resume_state of the end event of the episode "
+                              'before first_episode (clis run --resume: from the checkpoint): '
+                              'the robot starts its wander where it stood, the clock where it '
+                              'went on')
     round_trip_log: str = param(doc="lockstep: append 'sim_time round_trip_ms' of every held "
                                 "instant to this file ('' = none); p50/p99 are logged at exit")
 
@@ -102,17 +107,18 @@ class SimNode(Node):
         self.cfg = build(SimNodeParams, values.pop('node'), where='node')
         self.params = build(SimParams, values)
         self.arena = load_arena(self.cfg.arena_file or None)
-        # the same generators as the headless runner's for a seed (clis_learner.core.runner);
-        # a resumed run's own, so that it does not replay the draws of episode 1 and on
-        resumed = [self.cfg.first_episode] if self.cfg.first_episode > 1 else []
-        self.sim = Simulator(self.arena, self.params,
-                             np.random.default_rng([self.cfg.seed, 0, *resumed]))
-        self.start_rng = np.random.default_rng([self.cfg.seed, 1, *resumed])
+        # each episode's draws come from (seed, stream, episode) (:meth:`_start_episode`), so
+        # that a resumed run (first_episode > 1, resume_state) draws what the run it
+        # continues would have drawn, and does not replay episode 1's
+        self.sim = Simulator(self.arena, self.params, np.random.default_rng([self.cfg.seed, 0]))
+        self.start_rng = np.random.default_rng([self.cfg.seed, 1])
         self.wheel_base = self.params.robot.wheel_base
         self.u = np.zeros(2)
         self.u_time = -np.inf
         self.episode = self.cfg.first_episode - 1     # the last episode started
         self._time_offset = 0.0
+        if self.cfg.resume_state:
+            self._resume(self.cfg.resume_state)
         self.t_start = 0.0                  # sim time of the running episode's start
         self.episode_return = 0.0
         self.next_marker_t = 0.0
@@ -189,11 +195,35 @@ class SimNode(Node):
         response.message = f'episode {self.episode} started at {self.cfg.start}'
         return response
 
+    def _next_offset(self) -> float:
+        """The clock at the start of the next episode: /clock stays monotonic across
+        episodes, and the next episode starts one tick after the end, so that every stamp
+        belongs to one episode only."""
+        return self._time_offset + (self.sim.t + self.dt)
+
+    def resume_state(self) -> str:
+        """What the next episode starts from, exactly (``node.resume_state``): the robot's
+        pose, wheels and contact (:meth:`Simulator.carried`) and the clock, as hex floats."""
+        return ' '.join(float(v).hex() for v in (*self.sim.carried(), self._next_offset()))
+
+    def _resume(self, text: str) -> None:
+        """Stand where the episode before ``first_episode`` left the robot and the clock."""
+        try:
+            values = [float.fromhex(v) for v in text.split()]
+            if len(values) != 7:
+                raise ValueError(f'{len(values)} values, expected 7')
+            self.sim.carry(values[:6])
+        except ValueError as exc:
+            raise ConfigError(f'node.resume_state = {text!r}: {exc}') from None
+        self._time_offset = values[6]
+
     def _start_episode(self) -> None:
         if self.episode >= self.cfg.first_episode:    # not this process's first
-            # /clock stays monotonic across episodes, and the next episode starts one tick
-            # after the end, so that every stamp belongs to one episode only
-            self._time_offset += self.sim.t + self.dt
+            self._time_offset = self._next_offset()
+        # this episode's draws: from (seed, stream, episode), whatever came before
+        number = self.episode + 1
+        self.sim.reseed(np.random.default_rng([self.cfg.seed, 0, number]))
+        self.start_rng = np.random.default_rng([self.cfg.seed, 1, number])
         start, heading = draw_start(self.cfg.start, self.arena, self.start_rng)
         self.sim.reset(start=start, heading=heading)
         self.episode += 1
@@ -246,7 +276,7 @@ class SimNode(Node):
     def _end_episode(self, event: str) -> None:
         self.pub_episode.publish(conv.episode_msg(
             event, self.sim_time, episode=self.episode, episode_return=self.episode_return,
-            duration=self.sim.t))
+            duration=self.sim.t, resume_state=self.resume_state()))
 
     def tick(self) -> None:
         """Advance the simulator by one tick and publish what the robot senses."""

@@ -6,6 +6,9 @@ format version, the module names, periods and shapes, the parameter hash
 (:func:`~clis_learner.core.config.params_hash`) and any caller metadata (episode count, seed...).
 No pickles: it loads with ``allow_pickle=False``.
 
+The bytes are those of the content: the entries' times in the zip are fixed (1980-01-01, as
+a reproducible build's), so the same parameters and metadata give the same file.
+
 Saving is atomic: the file is written to a temporary file in the same folder, flushed and
 fsync'ed, then renamed over the target with :func:`os.replace` (atomic on POSIX), and the
 folder is fsync'ed. A crash or an exception at any point leaves either the old checkpoint or
@@ -23,6 +26,7 @@ import os
 from pathlib import Path
 import tempfile
 from typing import Any
+import zipfile
 
 from clis_modules.core.modules import ModuleCore
 import numpy as np
@@ -31,6 +35,8 @@ __all__ = ['CheckpointError', 'FORMAT_VERSION', 'save_checkpoint', 'load_checkpo
 
 #: Version of the checkpoint layout.
 FORMAT_VERSION = 1
+#: The time of every zip entry (the earliest a zip holds): not the time it was written.
+ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
 class CheckpointError(ValueError):
@@ -80,7 +86,7 @@ def save_checkpoint(path: str | os.PathLike, modules: Sequence[ModuleCore],
         # gets the mode of every other file the project writes (0666 less the umask)
         os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, 'wb') as fh:
-            np.savez(fh, **arrays)
+            _savez(fh, arrays)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -92,6 +98,16 @@ def save_checkpoint(path: str | os.PathLike, modules: Sequence[ModuleCore],
         raise
     _fsync_dir(path.parent)
     return path
+
+
+def _savez(fh, arrays: Mapping[str, np.ndarray]) -> None:
+    """:func:`numpy.savez` (the same layout: one ``NAME.npy`` per array, stored), with
+    :data:`ZIP_TIME` as every entry's time."""
+    with zipfile.ZipFile(fh, 'w', zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f'{name}.npy', date_time=ZIP_TIME)
+            with zf.open(info, 'w', force_zip64=True) as entry:
+                np.lib.format.write_array(entry, np.asanyarray(value), allow_pickle=False)
 
 
 def _fsync_dir(folder: Path) -> None:

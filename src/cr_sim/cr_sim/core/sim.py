@@ -422,6 +422,37 @@ class Simulator:
         self._set_pose(x, y, th)
         return self.observe()
 
+    def reseed(self, rng: np.random.Generator) -> None:
+        """Draw everything from now on from ``rng`` (starts, wander, and via a spawned child,
+        noise), as a new simulator would: the noise already drawn is dropped and the last
+        observation is not reused. With :meth:`carried` / :meth:`carry`, a run whose episodes
+        are reseeded at each reset can stop and go on in another process, the same to the bit
+        (the sim node, ``clis run --resume``)."""
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError('rng must be a numpy.random.Generator')
+        self._rng = self._wander._rng = rng
+        try:
+            self._noise_rng = rng.spawn(1)[0]
+        except (TypeError, AttributeError):   # a generator without a SeedSequence
+            self._noise_rng = np.random.default_rng(int(rng.integers(2**63)))
+        self._noise_block = np.empty((0, self._n_rays))
+        self._noise_pos = 0
+        self._tick += 1                        # the observation made before: drawn then
+
+    def carried(self) -> tuple[float, ...]:
+        """What the next :meth:`reset` (``'wander'``) starts from: ``(x, y, theta, v_left,
+        v_right, touching)`` (:meth:`carry` puts it in another simulator)."""
+        return (self._x, self._y, self._th, self._wl, self._wr, float(self._touching))
+
+    def carry(self, state: ArrayLike) -> None:
+        """Take :meth:`carried` of another simulator (the robot stands where it stood)."""
+        x, y, th, wl, wr, touching = (float(v) for v in np.asarray(state, float).reshape(6))
+        if disc_gap(x, y, self._r, self._boxes, self._half) < 0.0:
+            raise ValueError(f'carried pose ({x}, {y}) overlaps a wall or an obstacle')
+        self._x, self._y, self._th, self._wl, self._wr = x, y, th, wl, wr
+        self._touching = bool(touching)
+        self._tick += 1
+
     def _set_pose(self, x: float, y: float, th: float) -> None:
         self._x, self._y, self._th = float(x), float(y), wrap_angle(float(th))
         self._k = 0
