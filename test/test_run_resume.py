@@ -50,6 +50,7 @@ def test_resume_into_the_same_out_numbers_on_and_draws_anew(tmp_path):
     first = rows(out)
     assert [r['episode'] for r in first] == ['1', '2']
     assert meta(out / 'checkpoint.npz')['episode'] == 2
+    assert len(meta(out / 'checkpoint.npz')['sim_state'].split()) == 7   # where it goes on
     stale = dict(first[-1], episode='3', label='stale')   # written after the checkpoint
     with open(out / 'episodes.csv', 'a', newline='') as fh:
         csv.DictWriter(fh, fieldnames=list(stale)).writerow(stale)
@@ -76,3 +77,46 @@ def test_keep_rows_until(tmp_path, keep, expect):
     with open(path, newline='') as fh:
         assert [r['episode'] for r in csv.DictReader(fh)] == expect
     assert dropped == 3 - len(expect)
+
+
+def test_a_simulator_carried_into_a_new_one_goes_on_to_the_bit():
+    """What ``clis run --resume`` does with the simulator: each episode reseeded from
+    (seed, episode), and a new simulator that takes the pose an episode ended with runs the
+    next episodes exactly as the one that went on (wander, motion, noise)."""
+    from cr_sim.core.arena import load_arena
+    from cr_sim.core.sim import Simulator, load_sim_params
+    arena, params = load_arena(None), load_sim_params()
+
+    def episode(sim: Simulator, k: int) -> tuple[np.ndarray, tuple]:
+        sim.reseed(np.random.default_rng([5, 0, k]))
+        sim.reset('wander')
+        wheels, trace = np.random.default_rng([9, k]), []
+        while not sim.done and len(trace) < 60:
+            res = sim.step(wheels.uniform(-0.3, 0.6, 2))
+            trace.append((res.reward, *sim.pose, *sim.observe().ir))
+        return np.array(trace), sim.carried()
+
+    sim = Simulator(arena, params, np.random.default_rng([5, 0]))
+    runs, carried = zip(*[episode(sim, k) for k in range(1, 5)])
+    for cut in (1, 2, 3):
+        other = Simulator(arena, params, np.random.default_rng([5, 0]))
+        other.carry(carried[cut - 1])
+        for k in range(cut + 1, 5):
+            trace, _ = episode(other, k)
+            assert trace.tobytes() == runs[k - 1].tobytes(), (cut, k)
+
+
+def test_a_checkpoint_is_the_same_bytes_whenever_it_is_written(tmp_path):
+    import zipfile
+
+    from clis_learner.core.checkpoint import ZIP_TIME, load_checkpoint, save_checkpoint
+    from clis_learner.core.config import load_clis_params
+    from clis_modules.core.modules import arena_map, make_modules
+    from cr_sim.core.arena import load_arena
+    modules = make_modules(load_clis_params(), 'view', *arena_map(load_arena(None)))
+    path = save_checkpoint(tmp_path / 'a.npz', modules, 'h', {'episode': 3})
+    with zipfile.ZipFile(path) as zf:
+        assert {i.date_time for i in zf.infolist()} == {ZIP_TIME}
+    assert load_checkpoint(path, modules, 'h')['extra'] == {'episode': 3}
+    again = save_checkpoint(tmp_path / 'b.npz', modules, 'h', {'episode': 3})
+    assert again.read_bytes() == path.read_bytes()

@@ -57,24 +57,30 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         say(f'clis run: bad parameter: {exc}')
         rclpy.try_shutdown()
         return EXIT_CONFIG
-    executor = make_executor(next(n.graph.executor for n in nodes if hasattr(n, 'graph')))
-    monitor = Monitor()
-    view = ProgressView(args.episodes, args.block, args.quiet,
-                        sys.stderr.isatty() and not args.quiet, args.time_limit)
+    except BaseException:                        # Ctrl-C while the nodes are made
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        raise
     state = {'code': EXIT_OK}
+    monitor = view = None
+    try:                                         # (a Ctrl-C from here on: a clean stop)
+        executor = make_executor(next(n.graph.executor for n in nodes if hasattr(n, 'graph')))
+        monitor = Monitor()
+        view = ProgressView(args.episodes, args.block, args.quiet,
+                            sys.stderr.isatty() and not args.quiet, args.time_limit)
 
-    def on_wall() -> None:
-        if view.update(monitor.rows):
-            rclpy.try_shutdown()                 # ends the simulator's loop
+        def on_wall() -> None:
+            if view.update(monitor.rows):
+                rclpy.try_shutdown()             # ends the simulator's loop
 
-    monitor.node.create_timer(0.2, on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
-    for node in [*nodes, monitor.node]:
-        executor.add_node(node)
-    settle_heap()
-    if nodes[-1].cfg.realtime_priority:          # one process: the learner's thread too
-        ok, said = realtime(nodes[-1].cfg.realtime_priority)
-        say(f'clis run: {said}')
-    try:
+        monitor.node.create_timer(0.2, on_wall, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        for node in [*nodes, monitor.node]:
+            executor.add_node(node)
+        settle_heap()
+        if nodes[-1].cfg.realtime_priority:      # one process: the learner's thread too
+            ok, said = realtime(nodes[-1].cfg.realtime_priority)
+            say(f'clis run: {said}')
         run(nodes[-1], executor)                 # the simulator is the plan's last child
     except KeyboardInterrupt:
         state['code'] = EXIT_INTERRUPTED
@@ -89,7 +95,8 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
             if callable(close):
                 close()
             node.destroy_node()
-        monitor.node.destroy_node()
+        if monitor is not None:
+            monitor.node.destroy_node()
         rclpy.try_shutdown()
         dump_trace('graph')
         signal.signal(signal.SIGINT, signal.default_int_handler)
