@@ -36,3 +36,24 @@ def install_dir() -> Path:
     if not (path / 'setup.bash').is_file():
         pytest.fail('no colcon install/: run the tests through `make test` (it builds first)')
     return path
+
+
+def pytest_collection_modifyitems(config, items):
+    """With ``pytest -n N --dist loadgroup`` (pytest-xdist; ``make test``), the tests that
+    share a module-scoped fixture (one process graph, one run) go to one worker, so that it is
+    made once; the others are spread one by one. A parametrized module fixture makes one group
+    per value (test_robot_contract: the simulator's half and the bridge's on two workers)."""
+    for item in items:
+        info = getattr(item, '_fixtureinfo', None)
+        if info is None:
+            continue
+        params = getattr(getattr(item, 'callspec', None), 'params', {})
+        shared = []
+        for name in item.fixturenames:
+            defs = info.name2fixturedefs.get(name)
+            if defs and defs[-1].scope in ('module', 'class', 'package'):
+                shared.append(f'{name}={params[name]}' if name in params else name)
+        if shared:
+            key = item.module.__name__ + ''.join(f'[{s}]' for s in sorted(shared)
+                                                  if '=' in s)
+            item.add_marker(pytest.mark.xdist_group(key))

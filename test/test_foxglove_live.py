@@ -40,7 +40,9 @@ from clis_learner.foxglove_node import (
 from cr_sim.core.params import config_dir, ros_parameters
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
+from nav_msgs.msg import Odometry
 import pytest
+from rclpy.serialization import deserialize_message
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
@@ -188,11 +190,13 @@ def received(live: dict) -> dict[str, list[bytes]]:
             for cid, msgs in live['messages'].items()}
 
 
-def recorded(live: dict) -> dict[str, list[bytes]]:
-    """Topic -> the payloads of the run's bag, in the order recorded (published)."""
-    out: dict[str, list[bytes]] = {}
+def recorded(live: dict, with_log_ns: bool = False) -> dict[str, list]:
+    """Topic -> the payloads of the run's bag, in the order recorded (published); with
+    ``with_log_ns``, (the time the recorder got it [ns], payload) pairs."""
+    out: dict[str, list] = {}
     for m in BagReader(live['bag']).messages():
-        out.setdefault(m.topic, []).append(bytes(m.data))
+        data = bytes(m.data)
+        out.setdefault(m.topic, []).append((m.log_ns, data) if with_log_ns else data)
     return out
 
 
@@ -259,15 +263,18 @@ def test_derived_success_rate_and_path_agree_with_the_run(live):
                  + (b.pose.position.y - a.pose.position.y) ** 2) ** 0.5
                 for a, b in zip(path.poses, path.poses[1:])]
         assert all(d >= 0.02 - 1e-9 for d in step)        # foxglove.path_step
-    # each pose is the odometry of its instant (where the client got that odom message too)
+    # each pose is the odometry of its instant: the path is built from the odom messages the
+    # view forwards (decimated), not from those the client got, so it is judged against every
+    # odom message of the run, the bag's (the recorder, a subscriber too, may miss one on a
+    # loaded host: most poses must be found, and each one found must be equal)
     odom = {(m.header.stamp.sec, m.header.stamp.nanosec): m.pose.pose.position
-            for m in msgs['/odom']}
-    poses = [p for path in paths for p in path.poses
-             if (p.header.stamp.sec, p.header.stamp.nanosec) in odom]
-    assert poses, 'no pose of the path at an instant of the odom messages received'
-    for p in poses:
+            for m in (deserialize_message(d, Odometry) for d in recorded(live)['/odom'])}
+    poses = [p for path in paths for p in path.poses]
+    found = [p for p in poses if (p.header.stamp.sec, p.header.stamp.nanosec) in odom]
+    assert poses and 2 * len(found) >= len(poses), (len(found), len(poses))
+    for p in found:
         q = odom[p.header.stamp.sec, p.header.stamp.nanosec]
-        assert (q.x, q.y) == (p.pose.position.x, p.pose.position.y)
+        assert (q.x, q.y) == (p.pose.position.x, p.pose.position.y), p.header.stamp
 
 
 def test_the_server_listens_on_loopback_only(live):
@@ -303,7 +310,9 @@ def test_decimated_topics_arrive_as_published_in_sim_time_order(live):
             stamp(m.markers[0]) for m in msgs[topic] if m.markers]
         assert stamps == sorted(stamps), topic                  # sim time never goes back
         if topic in ('/odom', '/reward'):     # once per tick (the clock holds at the gates,
-            assert len(set(stamps)) == len(stamps), topic   # a module resends a proposal)
+            # a module resends a proposal, the simulator an instant's readings: the same
+            # message again): one message per stamp
+            assert len(set(zip(stamps, got[topic]))) == len(set(stamps)), topic
         # decimated: of the messages published from the first received to the last, fewer
         first, last = bag[topic].index(held[0]), bag[topic].index(held[-1])
         if len(held) < last - first + 1:
@@ -316,15 +325,23 @@ def test_decimated_topics_arrive_as_published_in_sim_time_order(live):
 def test_every_message_of_the_low_rate_topics_arrives(live):
     assert live['code'] == 0, live['text']
     got, bag, msgs = received(live), recorded(live), decoded(live)
+    # the run stops its nodes, the view with them, once the learner has reported the last
+    # episode: what is published after that report (the next episode's start) may not be
+    # served any more; everything up to it is
+    logged = recorded(live, with_log_ns=True)
+    end = max(ns for ns, _ in logged['/learner/progress'])
     for topic in EVERY:
-        mine = got[topic]
+        mine = got.get(topic)
         assert mine, topic
         first = min(bag[topic].index(d) for d in mine)
+        upto = [d for ns, d in logged[topic][first:] if ns <= end]
         if topic in LATCHED:
             # sent again to a late subscriber (the last foxglove.replay): once more, maybe
-            assert set(mine) == set(bag[topic][first:]), (topic, len(mine), len(bag[topic]))
+            assert set(upto) <= set(mine) <= set(bag[topic][first:]), \
+                (topic, len(mine), len(upto), len(bag[topic]))
         else:                                   # subscribed when the client did: from then on
-            assert mine == bag[topic][first:], (topic, len(mine), len(bag[topic]), first)
+            assert mine == bag[topic][first:first + len(mine)] and len(mine) >= len(upto), \
+                (topic, len(mine), len(upto), len(bag[topic]), first)
         if topic in ('/episode', '/learner/progress'):
             assert first == 0, topic                            # all of the run's
     # every episode of the run: its progress row and its start and end events

@@ -179,9 +179,16 @@ def test_commands_drive_nan_never_moves_and_wheels_are_clamped(robot):
     def at(m) -> np.ndarray:
         return np.array([m.pose.pose.position.x, m.pose.pose.position.y])
 
+    def turning(m) -> bool:
+        return abs(m.twist.twist.linear.x) > 1e-6 or abs(m.twist.twist.angular.z) > 1e-6
+
     def still() -> bool:
-        a, b = p.msgs['odom'][-2:]
-        return np.allclose(at(a), at(b), atol=1e-4)
+        # the wheels of three readings in a row at rest, and their poses equal: one pair of
+        # equal poses is not enough (the bridge's pose is the device's TRUE_POSE frame of the
+        # tick before, and a lost one repeats the pose before it while the robot still moves)
+        last = p.msgs['odom'][-3:]
+        return len(last) == 3 and not any(turning(m) for m in last) \
+            and all(np.allclose(at(last[0]), at(m), atol=1e-4) for m in last)
 
     def pose():
         return at(p.msgs['odom'][-1])
@@ -211,6 +218,7 @@ def test_commands_drive_nan_never_moves_and_wheels_are_clamped(robot):
     assert len(events(p)) == n_events, 'an episode ended in each of three NaN drives'
     assert all(np.allclose(p1, at(m), atol=2e-3) for m in p.msgs['odom'][n:]), \
         'a NaN command must not move the robot'
+    assert not any(turning(m) for m in p.msgs['odom'][n:]), 'a NaN command turned the wheels'
     n = len(p.msgs['wheels'])
 
     def spun() -> bool:
@@ -240,12 +248,16 @@ def test_an_idle_episode_times_out_with_one_reward_per_tick(robot):
     assert int(v['episode']) == ep
     assert t_end - t0 == pytest.approx(TIME_LIMIT, abs=1e-3)
     assert float(v['duration']) == pytest.approx(TIME_LIMIT, abs=1e-3)
-    # the rewards travel on their own topic: once the next episode has started, those of this
-    # one have all been published; the probe (~1,400 msg/s, a reader that lags can lose some)
-    # is judged on what it got: the publisher's sequence numbers count what was published
-    assert p.spin_until(lambda: int(events(p)[-1][2]['episode']) > ep, TIME_LIMIT / SPEED * 4
-                        + 60), events(p)[-3:]
-    p.drain(quiet=0.5, timeout=30)
+    # the rewards travel on their own topic, in the order published: once one of a later
+    # episode has arrived, every one of this episode that the probe will get is in (and the
+    # wheels, their own topic, once one stamped after the end is in). The probe (a reader
+    # that lags can lose some) is judged on what it got: the publishers' sequence numbers
+    # count what was published
+    def later(topic: str, done) -> bool:
+        return bool(p.msgs[topic]) and done(p.msgs[topic][-1])
+    assert p.spin_until(lambda: later('reward', lambda m: int(m.vector.z) > ep)
+                        and later('wheels', lambda m: stamp(m) > t_end + 1e-6),
+                        TIME_LIMIT / SPEED * 4 + 60), events(p)[-3:]
     got = [(stamp(m), m.vector.x, q) for m, q in zip(p.msgs['reward'], p.seqs['reward'])
            if int(m.vector.z) == ep]
     assert len(got) > 10, got
@@ -257,6 +269,17 @@ def test_an_idle_episode_times_out_with_one_reward_per_tick(robot):
     assert all(abs(t - t0 - k * TICK) < 1e-6 for t, k in zip(stamps, ks)), stamps[:5]
     assert ks == sorted(set(ks)) and 1 <= ks[0] and ks[-1] <= n, ks
     published = [(k, q) for k, (_, _, q) in zip(ks, got)]
+    # one reward per reading: between two rewards received, as many rewards were published
+    # as readings (wheels, published with each) were, judged where the probe has the
+    # readings of both instants
+    wheels = {round(stamp(m), 6): q for m, q in zip(p.msgs['wheels'], p.seqs['wheels'])}
+    paired = 0
+    for (ta, _, qa), (tb, _, qb) in zip(got, got[1:]):
+        wa, wb = wheels.get(round(ta, 6)), wheels.get(round(tb, 6))
+        if wa is not None and wb is not None:
+            assert qb - qa == wb - wa, (ta, tb, qb - qa, wb - wa)
+            paired += 1
+    assert paired >= 10, (paired, len(got))
     for (ka, qa), (kb, qb) in zip(published, published[1:]):
         if robot[0].kind == 'sim':      # one reward per tick, nothing else
             assert qb - qa == kb - ka, ((ka, qa), (kb, qb))
@@ -264,7 +287,7 @@ def test_an_idle_episode_times_out_with_one_reward_per_tick(robot):
             assert 0 < qb - qa <= kb - ka, ((ka, qa), (kb, qb))
     if ks[0] == 1 and ks[-1] == n:      # the probe got the first and the last one
         count = published[-1][1] - published[0][1] + 1
-        assert count == n if robot[0].kind == 'sim' else n * 0.98 <= count <= n, count
+        assert count == n if robot[0].kind == 'sim' else 0 < count <= n, count
     assert all(r == 0.0 for _, r, _ in rewards), \
         ('standing still collides with nothing', [(k, r) for k, (_, r, _) in zip(ks, rewards)
                                                   if r != 0.0])
