@@ -46,6 +46,15 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         for key, value in child.params.items():
             ros_args += ['-p', f'{key}:={_ros_literal(value)}']
     rclpy.init(args=ros_args)
+    # a Ctrl-C is remembered: one that lands in rclpy's C++ (taking a message) comes out as
+    # another error (pybind11's RuntimeError), which is then an interruption too, not a crash
+    interrupted = []
+
+    def ctrl_c(signum, frame) -> None:
+        interrupted.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, ctrl_c)
     factories = {'learner': LearnerNode, 'arbiter': ArbiterNode, 'sim': SimNode,
                  'recorder': RecorderNode}
     nodes = []
@@ -53,14 +62,16 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         for child in plan.children:
             factory = factories.get(child.name)
             nodes.append(factory() if factory else ModuleNode(child.name))
-    except (ConfigError, ValueError) as exc:
-        say(f'clis run: bad parameter: {exc}')
-        rclpy.try_shutdown()
-        return EXIT_CONFIG
-    except BaseException:                        # Ctrl-C while the nodes are made
+    except BaseException as exc:                 # a bad parameter, or Ctrl-C
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if interrupted:
+            raise KeyboardInterrupt from None
+        if isinstance(exc, (ConfigError, ValueError)):
+            say(f'clis run: bad parameter: {exc}')
+            return EXIT_CONFIG
         raise
     state = {'code': EXIT_OK}
     monitor = view = None
@@ -85,7 +96,9 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     except KeyboardInterrupt:
         state['code'] = EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - reported, then the graph is stopped
-        if rclpy.ok():
+        if interrupted:
+            state['code'] = EXIT_INTERRUPTED
+        elif rclpy.ok():
             raise
         del exc
     finally:
