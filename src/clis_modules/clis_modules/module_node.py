@@ -244,6 +244,12 @@ class ModuleNode(GraphNode):
     def _on_wall(self) -> None:
         now = time.monotonic()
         self._take_readings()                   # the queues stay short between decisions
+        if self.due:
+            # a due decision waits for readings, and the executor runs the timers of a wakeup
+            # before its subscriptions: a reading this took is one whose callback will not
+            # run, so decide on it here (else, on a loaded host where every wakeup finds this
+            # timer due, the decision waited for the next instant or the arbiter's timeout)
+            self._try_decide()
         self._check_stall(now)
         # under sim time the clock stands at the instant of the last proposal until the
         # arbiter has it: send it again if that takes long (lost while the graph connected)
