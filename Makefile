@@ -93,12 +93,12 @@ run: setup
 lint: setup
 	$(VENV)/bin/ruff check src test bench
 
-# A test that fails is run once more, alone, and the first failure stays in the output: two
-# graph tests (test_graph's killed module, test_robot_contract's bridge half) still lose a
-# message now and then, reproduced on this 2-core host; a failure that repeats fails make test.
+# The suite on TEST_WORKERS pytest-xdist workers (each with its own ROS_DOMAIN_ID, test/
+# conftest.py; tests that share a module fixture stay on one worker: --dist loadscope). Every
+# failure fails make test: no test is run again.
+TEST_WORKERS ?= 2
 test: lint
-	@$(ENV) && { python -m pytest $(PYTEST_ARGS) || { echo "make test: running the failed tests once more"; \
-	  python -m pytest --last-failed --last-failed-no-failures none $(PYTEST_ARGS); }; }
+	@$(ENV) && python -m pytest -n $(TEST_WORKERS) --dist loadscope $(PYTEST_ARGS)
 
 bench: setup
 	@$(ENV) && python bench/run_all.py

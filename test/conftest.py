@@ -6,8 +6,10 @@ rclpy and Fast DDS in separate OS processes).
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
+import re
 
 from clis_learner.ros_env import apply_ros_env, pick_domain_id
 import pytest
@@ -38,22 +40,36 @@ def install_dir() -> Path:
     return path
 
 
-def pytest_collection_modifyitems(config, items):
-    """With ``pytest -n N --dist loadgroup`` (pytest-xdist; ``make test``), the tests that
-    share a module-scoped fixture (one process graph, one run) go to one worker, so that it is
-    made once; the others are spread one by one. A parametrized module fixture makes one group
-    per value (test_robot_contract: the simulator's half and the bridge's on two workers)."""
-    for item in items:
-        info = getattr(item, '_fixtureinfo', None)
-        if info is None:
-            continue
-        params = getattr(getattr(item, 'callspec', None), 'params', {})
-        shared = []
-        for name in item.fixturenames:
-            defs = info.name2fixturedefs.get(name)
-            if defs and defs[-1].scope in ('module', 'class', 'package'):
-                shared.append(f'{name}={params[name]}' if name in params else name)
-        if shared:
-            key = item.module.__name__ + ''.join(f'[{s}]' for s in sorted(shared)
-                                                  if '=' in s)
-            item.add_marker(pytest.mark.xdist_group(key))
+@functools.cache
+def _module_fixtures(path: str) -> str | None:
+    """Whether the test file ``path`` (relative to the repository) has a module-scoped
+    fixture: None, 'module', or 'params' (a parametrized one)."""
+    try:
+        text = (REPO / path).read_text()
+    except OSError:
+        return None
+    if re.search(r"scope='module',\s*params=", text):
+        return 'params'
+    return 'module' if "scope='module'" in text else None
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``pytest -n N --dist loadscope`` (pytest-xdist; ``make test``): the tests of a file
+    that has a module-scoped fixture (one process graph, one run) go to one worker, so that it
+    is made once, one group per value of a parametrized one (test_robot_contract: the
+    simulator's half and the bridge's on two workers); every other test is spread alone."""
+    if config.getvalue('dist') != 'loadscope':
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedFixtureScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path, _, name = nodeid.partition('::')
+            kind = _module_fixtures(path)
+            if kind is None:
+                return nodeid
+            if kind == 'params' and name.endswith(']'):
+                return f'{path}[{name.rsplit("[", 1)[1]}'
+            return path
+    return SharedFixtureScheduling(config, log)

@@ -315,8 +315,10 @@ def _cdr(k: int) -> bytes:
 @pytest.mark.ros
 def test_offline_learning_from_a_recorded_run_equals_the_live_learner(tmp_path):
     run, bag = tmp_path / 'run', tmp_path / 'bags' / 'view3'
+    short = tmp_path / 'short.yaml'                    # episodes of 20 s: a third of the work
+    short.write_text('/**:\n  ros__parameters:\n    episode: {time_limit: 20.0}\n')
     out = clis('run', '--condition', 'view', '--episodes', '3', '--quiet', '--out', str(run),
-               '--record', str(bag), timeout=240)
+               '--record', str(bag), '--params', str(short), timeout=240)
     assert out.returncode == 0, out.stdout + out.stderr
     info = bag_info(bag)
     assert info.damage is None and info.custom_data['condition'] == 'view'

@@ -8,6 +8,7 @@ every intact frame again after garbage, and count what it dropped.
 from __future__ import annotations
 
 import math
+import os
 import struct
 
 from cr_bridge.core import protocol as proto
@@ -15,7 +16,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 import pytest
 
-FUZZ = settings(max_examples=1500, deadline=None,
+#: cases per fuzzed property in a run of the suite (each run draws new ones, and hypothesis
+#: replays a failing case from its database first); CLIS_FUZZ_EXAMPLES=1500 for a deep run
+#: (7,500 cases, about 2 CPU-minutes)
+EXAMPLES = int(os.environ.get('CLIS_FUZZ_EXAMPLES', '300'))
+FUZZ = settings(max_examples=EXAMPLES, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 finite = st.floats(-1.3, 1.3, allow_nan=False)
@@ -85,7 +90,7 @@ def test_round_trip_in_any_chunking(items, cuts):
                 assert (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, abs=1e-4)
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=EXAMPLES, deadline=None)
 @given(st.sampled_from([math.nan, math.inf, -math.inf]), finite, st.booleans())
 def test_a_non_finite_wheel_command_cannot_be_encoded(bad, good, left):
     cmd = proto.WheelCommand(bad, good) if left else proto.WheelCommand(good, bad)

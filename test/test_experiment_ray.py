@@ -15,7 +15,7 @@ import pytest
 
 from clis_learner import experiment, ray_backend
 
-ARGS = ['--conditions', 'innate,place', '--episodes', '100', '--block', '50', '--seeds', '2',
+ARGS = ['--conditions', 'innate,place', '--episodes', '60', '--block', '30', '--seeds', '2',
         '--eval-episodes', '1', '--workers', '2', '--quiet']
 
 
@@ -144,7 +144,7 @@ def test_killed_ray_worker_is_retried_and_resume_crosses_backends(pool_run, tmp_
     monkeypatch.setattr(experiment.Progress, 'finish', finish_and_note)
     assert _run(out, '--backend', 'ray', '--resume') == 0
     assert killed, 'no place run reported progress'
-    assert killed['episodes'] < 100                           # killed mid-run
+    assert killed['episodes'] < 60                            # killed mid-run
     assert len(finished) == 3                                 # the resumed run was not rerun
     assert f'[worker {killed["where"]}]' not in finished[killed['job']]   # rerun elsewhere
     for name in ('episodes.csv', 'eval.csv'):
