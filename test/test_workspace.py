@@ -56,13 +56,15 @@ def test_console_scripts_installed_where_ros2_run_looks(repo, install_dir, pkg):
 
 
 def test_every_declared_script_answers_help(repo, install_dir):
-    for pkg in PACKAGES:
-        for exe in console_scripts(repo / 'src' / pkg / 'setup.py'):
-            path = install_dir / pkg / 'lib' / pkg / exe
-            out = subprocess.run([str(path), '--help'], capture_output=True, text=True,
-                                 timeout=60)
-            assert out.returncode == 0, f'{pkg}/{exe} --help failed: {out.stderr}'
-            assert 'usage' in out.stdout.lower()
+    # all at once (each mostly imports): the suite's workers wait for one, not for each
+    procs = {(pkg, exe): subprocess.Popen([str(install_dir / pkg / 'lib' / pkg / exe), '--help'],
+                                          stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                          stdin=subprocess.DEVNULL, text=True)
+             for pkg in PACKAGES for exe in console_scripts(repo / 'src' / pkg / 'setup.py')}
+    for (pkg, exe), proc in procs.items():
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, f'{pkg}/{exe} --help failed: {err}'
+        assert 'usage' in out.lower()
 
 
 def test_clis_is_on_path_after_sourcing_the_install(repo, install_dir):
