@@ -16,7 +16,7 @@ from clis_learner.core.config import load_clis_params
 from clis_learner.core.learner import Learner
 from clis_learner.core.memory import EpisodeMemory
 from clis_modules.core.decider import Decider, Percept
-from clis_modules.core.modules import make_modules
+from clis_modules.core.modules import make_modules, place_projection
 import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
@@ -184,3 +184,23 @@ def test_observe_scores_the_place_belief_of_that_instant_and_leaves_the_module_a
     twin.predict(*odo)
     twin.update(later)
     np.testing.assert_array_equal(b, twin.belief)
+
+
+def test_observe_gives_the_rbf_features_of_that_belief_as_decide_does():
+    # with place.features.kind rbf the behaviour's density needs the 288 features, not the
+    # 4800-cell belief (the paper rules' Async crashed in memory.states on the mismatch)
+    rbf = load_clis_params(overrides={'place.features.kind': 'rbf'})
+    place = make_modules(rbf, 'place', LANDMARKS, 1.5)[0]
+    d = Decider(place, np.random.default_rng(0), wheel_base=0.1)
+    d.reset()
+    d.decide(Percept(0.0, math.nan, 0.4, np.array([0.3, 1.9, -2.0, -1.1])))
+    d.on_wheels(0.1, 0.12, 0.25)
+    odo = d._odo
+    later = np.array([0.25, 1.8, -2.1, -1.2])
+    b = d.observe(Percept(0.25, math.nan, 0.4, later))
+    assert b.shape == (place.n,) and place.n < place.localizer.size
+    twin = copy.deepcopy(place.localizer)
+    twin.predict(*odo)
+    twin.update(later)
+    P = place_projection(twin, rbf.place.features)  # noqa: N806 - (288, 4800)
+    np.testing.assert_allclose(b, P @ twin.belief, rtol=1e-12)

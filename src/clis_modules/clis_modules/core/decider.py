@@ -186,7 +186,9 @@ class Decider:
         loc = m.localizer
         if loc is None:
             return m.features(percept.dest_bearing, percept.d_o, percept.landmark_bearings)
-        return loc.peek(None if self._first else self._odo, percept.landmark_bearings)
+        # the features of the peeked belief (the RBF projection with place.features.kind rbf)
+        return m.belief_features(loc.peek(None if self._first else self._odo,
+                                          percept.landmark_bearings))
 
     def warm_up(self, n_landmarks: int) -> None:
         """Run a copy of this decider through every path of an episode once, so that the

@@ -267,6 +267,10 @@ class ModuleCore:
         ``None`` for a fixed policy (``learned`` is False).
     localizer : MarkovLocalizer, optional
         The place module's localization (driven by the runner).
+    belief_features : callable, optional
+        With a localizer: ``belief_features(belief) -> b`` of shape (n,), the features of any
+        belief (of :meth:`MarkovLocalizer.peek` too); ``feature_fn`` is it applied to the
+        localizer's current belief. Default: the belief itself.
 
     Attributes
     ----------
@@ -277,8 +281,10 @@ class ModuleCore:
     def __init__(self, name: str, period: float, gamma: float, v_max: float, n: int,
                  feature_fn: Any, policy: GaussianPolicy, value: LinearValue,
                  value_params: ValueParams, policy_params: PolicyParams | None = None,
-                 localizer: MarkovLocalizer | None = None) -> None:
+                 localizer: MarkovLocalizer | None = None,
+                 belief_features: Any = None) -> None:
         self.name = name
+        self.belief_features = belief_features or (lambda belief: belief.copy())
         self.period = float(period)
         self.gamma = float(gamma)
         self.v_max = float(v_max)
@@ -439,17 +445,21 @@ def make_place(prm: PlaceParams, common: CommonParams, landmarks_xy: ArrayLike,
     if fp.kind == 'rbf':
         P = place_projection(loc, fp)  # noqa: N806 - (n_rbf, cells)
 
-        def feature_fn(dest: float, d_o: float, lm: Any) -> np.ndarray:
-            return P @ loc.belief
+        def belief_features(belief: np.ndarray) -> np.ndarray:
+            return P @ belief
         n = P.shape[0]
     else:
-        def feature_fn(dest: float, d_o: float, lm: Any) -> np.ndarray:
-            return loc.belief.copy()
+        def belief_features(belief: np.ndarray) -> np.ndarray:
+            return belief.copy()
         n = loc.size
+
+    def feature_fn(dest: float, d_o: float, lm: Any) -> np.ndarray:
+        return belief_features(loc.belief)
     return ModuleCore(
         'place', tau, module_gamma(common, tau), v_max, n, feature_fn,
         GaussianPolicy(np.zeros((2, n)), prm.policy.sigma, v_max),
-        LinearValue(n, prm.value.v_init), prm.value, prm.policy, localizer=loc)
+        LinearValue(n, prm.value.v_init), prm.value, prm.policy, localizer=loc,
+        belief_features=belief_features)
 
 
 def place_projection(loc: MarkovLocalizer, fp: PlaceFeatureParams) -> scipy.sparse.csr_matrix:
