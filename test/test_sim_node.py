@@ -200,9 +200,12 @@ def test_sim_node_takes_plain_twist_by_parameter_and_resets_on_request(probe):
         assert probe.spin_until(lambda: turned() > 0.3, 10), f'Twist turned {turned():.3f} rad'
         # stop turning (the command in force would turn the robot right after the reset)
         msg.angular.z = 0.0
-        for _ in range(5):
+
+        def still() -> bool:            # judged by what arrived: three odoms, one heading
             pub.publish(msg)
-            probe.spin_for(0.05)
+            h = [pose_of(m)[2] for m in probe.msgs['odom'][-3:]]
+            return len(h) == 3 and max(h) - min(h) < 1e-9
+        assert probe.spin_until(still, 10), 'the robot still turns after a zero Twist'
         # the reset service ends the episode and starts the next one at start A again
         client = probe.node.create_client(Trigger, 'reset')
         assert client.wait_for_service(timeout_sec=10)
