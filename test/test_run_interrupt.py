@@ -72,12 +72,19 @@ def learned(out: Path) -> int:
 
 def moment(out: Path, rng: random.Random, first: bool, running: Callable[[], bool]) -> None:
     """Wait for a random moment: while the run starts, or up to 0.2 s after one of its next
-    learned episodes (the first time, after one or two: a checkpoint to resume from)."""
+    learned episodes (the first time, after one or two: a checkpoint to resume from), but never
+    past the end of the episode after that one.
+
+    The bound is in episodes, not seconds: on a fast host a fifth of a second is many episodes,
+    and a run that learns them all ends before it was interrupted :data:`INTERRUPTS` times (CI
+    failed so). Each interruption lets at most j + 1 <= 3 episodes be learned."""
     before = learned(out)
     j = rng.randint(1, 2) if first else rng.randint(0, 2)
     while learned(out) < before + j and running():
-        time.sleep(0.01)
-    time.sleep(rng.uniform(0.0, 0.2) if j else rng.uniform(0.0, 1.0))
+        time.sleep(0.005)
+    deadline = time.monotonic() + (rng.uniform(0.0, 0.2) if j else rng.uniform(0.0, 1.0))
+    while time.monotonic() < deadline and learned(out) <= before + j and running():
+        time.sleep(0.005)
 
 
 def interrupted_process(out: Path, params: Path, rng: random.Random, first: bool) -> int:
