@@ -105,6 +105,7 @@ def cases(i: Path) -> list[tuple[str, list[str], str]]:
         ('--startup-timeout', ['--startup-timeout', 'x'], 'invalid float'),
         ('--record', ['--record', str(i / 'a_file')], 'not a folder'),
         ('--foxglove', ['--foxglove', 'x'], 'invalid int'),
+        ('--foxglove-wait', ['--foxglove-wait'], 'add --foxglove'),
         ('--realtime', ['--realtime', '200'], '[1, 97]'),
         ('--realtime', ['--realtime', 'x'], 'invalid int'),
         ('--real-time', ['--real-time'], 'use --speed 1'),

@@ -11,10 +11,11 @@ server listens on 127.0.0.1 only (``/proc/net/tcp*`` of the node's own sockets).
 
 The run also records its bag (``--record``: every message of every topic, as published) and
 serves the view with ``foxglove.max_rate`` lowered to :data:`MAX_RATE` (``--params``), so that the
-decimation shows at any speed of the graph: a decimated topic's messages arrive as published,
-in sim-time order, a subset of the bag's; every message of the other topics arrives (the bag's,
-from the first one the client got to the last; the learner's progress of every episode of
-``episodes.csv``, the episode events of each).
+decimation shows at any speed of the graph, with ``--foxglove-wait`` (the first episode waits
+for the client, so that a short run on a fast host is seen from its start): a decimated topic's
+messages arrive as published, in sim-time order, a subset of the bag's; every message of the
+other topics arrives (the bag's, from the first one the client got to the last; the learner's
+progress of every episode of ``episodes.csv``, the episode events of each).
 """
 
 from __future__ import annotations
@@ -122,7 +123,7 @@ def live(tmp_path_factory):
     port = free_port()
     proc = subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', 'run', '--out', str(out),
                              '--quiet', '--condition', 'async', '--episodes', '2', '--seed', '1',
-                             '--foxglove', str(port), '--record', str(bag),
+                             '--foxglove', str(port), '--foxglove-wait', '--record', str(bag),
                              '--params', str(params)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     seen = {'channels': {}, 'messages': {}, 'listen': None, 'protocol': None, 'info': None,

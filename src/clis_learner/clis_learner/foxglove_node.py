@@ -56,6 +56,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Mapping
+import json
 import time
 from typing import Any
 
@@ -111,6 +112,9 @@ class FoxgloveParams:
                                      'client that subscribes late')
     decimated: str = param(doc='comma-separated high-rate topics forwarded at most max_rate '
                                'per wall second (the newest message); the others: every message')
+    wait_for_client: bool = param(doc='no odom subscription until a client subscribes to the '
+                                      'channel of every shown topic that has a publisher '
+                                      '(clis run --foxglove-wait: the simulator waits for it)')
 
 
 class FoxgloveNode(GraphNode):
@@ -155,6 +159,12 @@ class FoxgloveNode(GraphNode):
         self.path_sent = (0, 0.0)                        # (poses sent, wall time)
         self.reached: dict[int, int] = {}                # learned episode -> reached
         self.closed = False
+        #: foxglove.wait_for_client: no odom subscription (the simulator's first episode waits
+        #: for it with clis run --foxglove-wait) until a client watches (:meth:`_client_ready`)
+        self.held = self.cfg.wait_for_client
+        self.shown = frozenset(self.resolve_topic_name(t)
+                               for t in shown_topics(json.loads(layout().to_json()))
+                               if t not in DERIVED)
         from foxglove.websocket import ServerListener
 
         node = self
@@ -215,6 +225,8 @@ class FoxgloveNode(GraphNode):
         """Whether to subscribe to ``topic`` now: always to a latched topic (its last message
         is what a late client gets), else while a client subscribes to its channel (or, for
         ``odom``, to the path's)."""
+        if topic == self.odom and self.held:
+            return False
         if topic in self.latched:
             return True
         chan = self.channels.get(topic)
@@ -224,6 +236,9 @@ class FoxgloveNode(GraphNode):
 
     def _sync(self) -> None:
         """Subscribe to the topics :meth:`_needed`, and unsubscribe from the others."""
+        if self.held and self._client_ready():
+            self.held = False
+            self.get_logger().info('a client watches: the run starts (foxglove.wait_for_client)')
         for topic, msg_type in self.types.items():
             need = self._needed(topic)
             if need and topic not in self.subs:
@@ -231,6 +246,14 @@ class FoxgloveNode(GraphNode):
             elif not need and topic in self.subs:
                 self.destroy_subscription(self.subs.pop(topic)[1])
                 self.due.pop(topic, None)
+
+    def _client_ready(self) -> bool:
+        """Whether the robot (odom) has a publisher and a client has subscribed to the channel
+        of every shown topic that has one."""
+        if not self.count_publishers(self.odom):
+            return False
+        return all(t in self.channels and self.channels[t].has_sinks()
+                   for t in self.shown if self.count_publishers(t))
 
     def _subscribe(self, topic: str, msg_type: str) -> None:
         """A raw subscription out of the executor. A decimated topic: best effort, a queue of
@@ -530,6 +553,22 @@ def plan_live_view(plan: Any, args: Any) -> str | None:
     plan.children.insert(0, Child('foxglove', 'clis_learner', 'foxglove', {
         **graph, 'foxglove.port': int(args.foxglove), 'foxglove.block': int(args.block)},
         stop_last=True))
+    # the simulator's first episode also waits for the view's subscription of the episode
+    # events (made once it has discovered the simulator): a short run on a fast host could
+    # otherwise end before the view had discovered it, and show nothing of the robot (seen in
+    # a fresh-clone make test). With --foxglove-wait, also for its odom subscription, made
+    # once a client watches every shown topic (foxglove.wait_for_client: _client_ready)
+    recording = any(c.name == 'recorder' for c in plan.children)
+    wait = bool(getattr(args, 'foxglove_wait', False))
+    plan.children[0].params['foxglove.wait_for_client'] = wait
+    for child in plan.children:
+        subs = child.params.get('node.start_subscribers') if child.name == 'sim' else None
+        if subs:
+            counts = dict(s.rpartition(':')[::2] for s in subs if s)
+            counts['episode'] = str(int(counts.get('episode', 0)) + 1)
+            if wait:
+                counts['odom'] = str(int(counts.get('odom', 0)) + 1 + recording)
+            child.params['node.start_subscribers'] = [f'{t}:{n}' for t, n in counts.items()]
     return None
 
 

@@ -480,6 +480,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--foxglove', type=int, nargs='?', const=8765, metavar='PORT',
                    help='serve the topics live to the Foxglove app on ws://127.0.0.1:PORT '
                         '(default 8765; docs/foxglove.md)')
+    p.add_argument('--foxglove-wait', action='store_true',
+                   help='with --foxglove: the first episode waits until a client shows the '
+                        "robot (subscribes to odom's channel; the simulator starts anyway "
+                        'after its graph_timeout), so that a short run is seen from its start')
     p.add_argument('--realtime', type=int, nargs='?', const=REALTIME_PRIORITY, default=0,
                    metavar='PRIO',
                    help='run the sensor-to-command path (modules, simulator, arbiter; not the '
@@ -720,6 +724,10 @@ def main(args: argparse.Namespace) -> int:
                       args.robot, args.device,
                       str(args.record.resolve()) if args.record else '', args.realtime,
                       args.first_episode, args.sim_state, args.version + args.episodes)
+    if args.foxglove_wait and args.foxglove is None:
+        print('clis run: --foxglove-wait waits for a client of the live view: add --foxglove '
+              '[PORT]', file=sys.stderr)
+        return EXIT_CONFIG
     if args.foxglove is not None:                    # the live view (docs/foxglove.md)
         from clis_learner.foxglove_node import plan_live_view
         if error := plan_live_view(plan, args):
