@@ -334,6 +334,15 @@ def test_every_message_of_the_low_rate_topics_arrives(live):
     for topic in EVERY:
         mine = got.get(topic)
         assert mine, topic
+        # and the last thing published, the next episode's start, may reach the view but not
+        # the recorder: the simulator is stopped first, and a reliable writer that is gone
+        # repairs no loss (seen once under load). Such messages end the client's stream.
+        recorded_ = set(bag[topic])
+        k = next((i for i, d in enumerate(mine) if d not in recorded_), len(mine))
+        assert all(d not in recorded_ for d in mine[k:]) and len(mine) - k <= 1, \
+            (topic, 'received, never recorded, before the end', len(mine) - k)
+        mine = mine[:k]
+        assert mine, topic
         first = min(bag[topic].index(d) for d in mine)
         upto = [d for ns, d in logged[topic][first:] if ns <= end]
         if topic in LATCHED:
