@@ -385,17 +385,27 @@ def test_killed_module_and_learner_rejoin_without_losing_an_update(tmp_path):
         subprocess.run(['kill', '-9', str(_pid(proc.pid, 'learner'))], check=True)
         v_before = int(params_before['view'].position[0])
         n_after_kill = len(probe.msgs['view/params'])
-        assert probe.spin_until(lambda: len(probe.msgs['view/params']) > n_after_kill, 120), \
+        # the restarted learner's first message: its publisher numbers from 1 again, while
+        # what the killed one published last may still arrive after the kill (the probe lags:
+        # versions 5 and 6 arrived so once, with 4 the last seen at the kill)
+        seqs = probe.seqs['view/params']
+        pre_max = max(seqs[:n_after_kill])
+
+        def restarted() -> int | None:
+            return next((i for i in range(n_after_kill, len(seqs)) if seqs[i] <= pre_max),
+                        None)
+        assert probe.spin_until(lambda: restarted() is not None, 120), \
             'the learner did not come back'
-        resumed = probe.msgs['view/params'][n_after_kill]
+        k_resumed = restarted()
+        resumed = probe.msgs['view/params'][k_resumed]
         v_resumed = int(resumed.position[0])
         assert v_resumed >= v_before
         # the weights it resumes with are those it had published with that version before
         # the kill; only a kill between the checkpoint and the publication of the version
-        # after the last one seen (the learner saves first) leaves nothing to compare with
-        seen = [m for m in probe.msgs['view/params'][:n_after_kill]
+        # after the last one published (the learner saves first) leaves nothing to compare with
+        seen = [m for m in probe.msgs['view/params'][:k_resumed]
                 if int(m.position[0]) == v_resumed]
-        last_seen = max(int(m.position[0]) for m in probe.msgs['view/params'][:n_after_kill])
+        last_seen = max(int(m.position[0]) for m in probe.msgs['view/params'][:k_resumed])
         assert v_resumed <= last_seen + 1, (v_resumed, last_seen)
         if seen:
             assert list(resumed.velocity) == list(seen[-1].velocity)
