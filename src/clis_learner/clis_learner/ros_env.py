@@ -91,7 +91,7 @@ def apply_ros_env(env: MutableMapping[str, str] | None = None, *, network: bool 
     elif not env.get('ROS_DOMAIN_ID'):
         env['ROS_DOMAIN_ID'] = str(pick_domain_id())
     if network:
-        if env.get(PROFILE_VAR, '').endswith(PROFILE_NAME):
+        if Path(env.get(PROFILE_VAR, '')).name in OUR_PROFILES:   # any of ours: loopback
             del env[PROFILE_VAR]
         if env.get('ROS_AUTOMATIC_DISCOVERY_RANGE') == 'LOCALHOST':
             del env['ROS_AUTOMATIC_DISCOVERY_RANGE']
