@@ -481,9 +481,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='serve the topics live to the Foxglove app on ws://127.0.0.1:PORT '
                         '(default 8765; docs/foxglove.md)')
     p.add_argument('--foxglove-wait', action='store_true',
-                   help='with --foxglove: the first episode waits until a client shows the '
-                        "robot (subscribes to odom's channel; the simulator starts anyway "
-                        'after its graph_timeout), so that a short run is seen from its start')
+                   help='with --foxglove: the first episode waits until a client subscribes '
+                        'to every shown topic that has a publisher (the simulator starts '
+                        'anyway after its graph_timeout), so that a short run is seen from '
+                        'its start')
     p.add_argument('--realtime', type=int, nargs='?', const=REALTIME_PRIORITY, default=0,
                    metavar='PRIO',
                    help='run the sensor-to-command path (modules, simulator, arbiter; not the '
