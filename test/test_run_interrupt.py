@@ -42,17 +42,23 @@ import numpy as np
 import pytest
 
 EPISODES = 80
+#: the interrupted runs' clock against wall time: an episode (<= 4 s) takes >= 0.4 s, so that the
+#: test's watcher thread, which needs the GIL and a core, stops the run within a few episodes
+#: (at full speed on a host with two busy loops it once came after the run's last 64 episodes;
+#: the uninterrupted run is at full speed: lockstep, so the clock's pace changes no result)
+SPEED = 10.0
 PARAMS = '/**:\n  ros__parameters:\n    episode: {time_limit: 4.0, wander_time: 1.0}\n'
 INTERRUPTS = 20                    # at least, that land in `clis run` (exit code 130)
 #: these interruptions stop `clis run` processes; the others one in this process
 SUBPROCESS = (0,)
 
 
-def argv(out: Path, params: Path) -> list[str]:
-    """``clis run`` for the episodes OUT still has to learn (from its checkpoint, if any)."""
+def argv(out: Path, params: Path, speed: float = 0.0) -> list[str]:
+    """``clis run`` for the episodes OUT still has to learn (from its checkpoint, if any), its
+    clock at ``speed`` times wall time (0: as fast as it goes)."""
     done = learned(out)
     return ['run', '--condition', 'innate', '--episodes', str(EPISODES - done), '--params',
-            str(params), '--out', str(out), '--quiet',
+            str(params), '--out', str(out), '--quiet', '--speed', str(speed),
             *(['--resume', str(out / 'checkpoint.npz')] if done else [])]
 
 
@@ -89,7 +95,7 @@ def moment(out: Path, rng: random.Random, first: bool, running: Callable[[], boo
 
 def interrupted_process(out: Path, params: Path, rng: random.Random, first: bool) -> int:
     """``clis run`` (one process per node) stopped by a SIGINT: its exit code."""
-    proc = start(argv(out, params))
+    proc = start(argv(out, params, SPEED))
     moment(out, rng, first, lambda: proc.poll() is None)
     proc.send_signal(signal.SIGINT)
     text, _ = proc.communicate(timeout=300)
@@ -111,7 +117,7 @@ def interrupted_here(out: Path, params: Path, rng: random.Random, first: bool) -
     watcher.start()
     try:
         try:
-            return clis([*argv(out, params), '--single-process'])
+            return clis([*argv(out, params, SPEED), '--single-process'])
         finally:
             done.set()
             watcher.join()
