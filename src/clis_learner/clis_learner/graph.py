@@ -154,9 +154,12 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     graph = {'graph.condition': condition, 'graph.seed': seed, 'graph.arena_file': arena}
     plan = GraphPlan()
     if record:                                       # the bag recorder: up first, stops last
+        # (its episode subscription, which the first episode waits for, once it has matched
+        # the publishers of the modules and the arbiter: their first messages are in the bag)
+        wait_for = [f'{m}/proposal' for m in modules] + ['arbiter/action', 'cmd_vel']
         plan.children.append(Child('recorder', 'clis_learner', 'recorder', {
-            **graph, 'recorder.path': record, 'recorder.on_exists': 'number'},
-            stop_last=True))
+            **graph, 'recorder.path': record, 'recorder.on_exists': 'number',
+            'recorder.wait_for': ','.join(wait_for)}, stop_last=True))
     plan.children.append(Child('learner', 'clis_learner', 'learner', {
         **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume,
         **({'learner_node.episodes': learn_until} if learn_until > 0 else {})},

@@ -89,6 +89,11 @@ class RecorderParams:
     poll_period: float = param(0.0005, 0.5, doc='wall seconds between takes of the queues')
     compression: str = param(choices=('zstd', 'lz4', 'none'), doc='chunk compression')
     chunk_size: int = param(4096, 2**30, doc='uncompressed bytes per chunk')
+    wait_for: str = param(doc="comma-separated topics whose publishers are matched before the "
+                              "episode events are subscribed to ('' = none; clis run: the "
+                              "modules' and the arbiter's, as the simulator's first episode "
+                              'waits for that subscription)')
+    wait_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for them at most')
 
 
 def message_class(msg_type: str) -> type:
@@ -160,16 +165,42 @@ class RecorderNode(GraphNode):
         wanted = {self._absolute(t): typ for t, typ in GRAPH_TOPICS.items()}
         if self.only:
             wanted = {t: wanted[t] for t in self.only if t in wanted}
-        # the episode topic first: clis run starts the simulator once it is subscribed
-        for topic in sorted(wanted, key=lambda t: not t.endswith('/episode')):
-            self._subscribe(topic, wanted[topic])
+        # the episode topic first: clis run starts the simulator once it is subscribed; with
+        # recorder.wait_for, last, once the publishers of those topics are matched (a
+        # publisher's first messages go out before DDS has matched it with the recorder: under
+        # load a bag once missed a module's first 58 proposals)
+        self.episode = self._absolute('episode')
+        self.waiting = [self._absolute(t) for t in self.cfg.wait_for.split(',') if t.strip()]
+        self.wait_deadline = time.monotonic() + self.cfg.wait_timeout
+        if self.episode not in wanted:
+            self.waiting = []
+        for topic in sorted(wanted, key=lambda t: t != self.episode):
+            if not (self.waiting and topic == self.episode):
+                self._subscribe(topic, wanted[topic])
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.waiting and self.episode in wanted:
+            self._wait_timer = self.create_timer(0.02, lambda: self._end_wait(
+                wanted[self.episode]), clock=steady)
         self.create_timer(self.cfg.discovery_period, self._discover, clock=steady)
         self.create_timer(self.cfg.flush_interval, self._flush, clock=steady)
         self.create_timer(self.cfg.poll_period, self._poll, clock=steady)
         self.get_logger().info(
             f'recording into {self.writer.path} '
             f'({", ".join(self.only) if self.only else "every topic of the graph"})')
+
+    def _end_wait(self, episode_type: str) -> None:
+        """Subscribe to the episode events once every topic of ``recorder.wait_for`` has a
+        matched publisher (or after ``recorder.wait_timeout``, saying which has none)."""
+        missing = [t for t in self.waiting
+                   if t not in self.subs or not self.subs[t][1].get_publisher_count()]
+        if missing and time.monotonic() < self.wait_deadline:
+            return
+        if missing:
+            self.get_logger().warning('no publisher matched within recorder.wait_timeout: '
+                                      + ', '.join(missing))
+        self.waiting = []
+        self.destroy_timer(self._wait_timer)
+        self._subscribe(self.episode, episode_type)
 
     def _free_path(self, path: Path) -> Path:
         def taken(p: Path) -> bool:
@@ -254,6 +285,8 @@ class RecorderNode(GraphNode):
                 continue
             msg_type = types[0]
             if topic in self.subs and self.subs[topic][0] == msg_type:
+                continue
+            if self.waiting and topic == self.episode:     # subscribed once they are matched
                 continue
             if topic in self.writer.topics:             # recorded with another type already
                 continue
