@@ -561,13 +561,14 @@ def plan_live_view(plan: Any, args: Any) -> str | None:
     recording = any(c.name == 'recorder' for c in plan.children)
     wait = bool(getattr(args, 'foxglove_wait', False))
     plan.children[0].params['foxglove.wait_for_client'] = wait
+    from cr_sim.interface import parse_counts
     for child in plan.children:
         subs = child.params.get('node.start_subscribers') if child.name == 'sim' else None
         if subs:
-            counts = dict(s.rpartition(':')[::2] for s in subs if s)
-            counts['episode'] = str(int(counts.get('episode', 0)) + 1)
+            counts = parse_counts(tuple(subs), 'sim.node.start_subscribers')
+            counts['episode'] = counts.get('episode', 0) + 1
             if wait:
-                counts['odom'] = str(int(counts.get('odom', 0)) + 1 + recording)
+                counts['odom'] = counts.get('odom', 0) + 1 + recording
             child.params['node.start_subscribers'] = [f'{t}:{n}' for t, n in counts.items()]
     return None
 
