@@ -178,7 +178,7 @@ class RecorderNode(GraphNode):
             if not (self.waiting and topic == self.episode):
                 self._subscribe(topic, wanted[topic])
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        if self.waiting and self.episode in wanted:
+        if self.waiting:
             self._wait_timer = self.create_timer(0.02, lambda: self._end_wait(
                 wanted[self.episode]), clock=steady)
         self.create_timer(self.cfg.discovery_period, self._discover, clock=steady)
