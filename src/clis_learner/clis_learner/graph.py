@@ -58,6 +58,8 @@ from typing import Any
 from clis_modules.core.modules import CONDITIONS
 import numpy as np
 
+from clis_learner import ctrl_c
+
 __all__ = ['Child', 'GraphPlan', 'plan_graph', 'register', 'main', 'write_curve']
 
 EXIT_OK, EXIT_CHILD, EXIT_CONFIG, EXIT_STARTUP, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
@@ -800,9 +802,16 @@ def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
 
     rclpy.init(args=['clis_run', '--ros-args', '--disable-rosout-logs'],
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    interrupted = []
-    old = signal.signal(signal.SIGINT, lambda *_: interrupted.append(True))
-    signal.signal(signal.SIGTERM, lambda *_: interrupted.append(True))
+    # a Ctrl-C since the command started (clis_learner.ctrl_c) counts, even one whose
+    # KeyboardInterrupt was swallowed where it was raised
+    interrupted = [True] if ctrl_c.interrupted() else []
+
+    def stop(signum: int, frame: Any) -> None:
+        interrupted.append(True)
+        ctrl_c.remember(signum)
+
+    old = signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
     sup = Supervisor(plan, out, args.params, args.max_restarts, say)
     monitor = Monitor()
     code = EXIT_OK
