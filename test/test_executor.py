@@ -1,14 +1,14 @@
-"""cr_sim.executor.LeanExecutor keeps rclpy's executor semantics (real rclpy and Fast DDS, one
-process, its own context): subscriptions, timers, guard conditions, services and clients,
-QoS events, coroutine callbacks, callback groups that turn themselves off, errors, and an
-entity destroyed by a callback."""
+"""cr_sim.ros_support.executor.LeanExecutor keeps rclpy's executor semantics (real rclpy and
+Fast DDS, one process, its own context): subscriptions, timers, guard conditions, services and
+clients, QoS events, coroutine callbacks, callback groups that turn themselves off, errors, and
+an entity destroyed by a callback."""
 
 from __future__ import annotations
 
 import time
 
 from clis_modules.graph_node import OnDemand
-from cr_sim.executor import LeanExecutor
+from cr_sim.ros_support.executor import LeanExecutor
 import pytest
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks

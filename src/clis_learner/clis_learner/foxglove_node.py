@@ -62,7 +62,7 @@ from typing import Any
 
 from clis_modules.graph_node import GraphNode, OnDemand, run_node
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.ros_params import declare_from_config
+from cr_sim.ros_support.ros_params import declare_from_config
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry, Path

@@ -142,10 +142,10 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     """The nodes of ``condition``, with the parameters ``clis run`` gives each;
     ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
     ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
-    :func:`cr_sim.lifecycle.realtime`); ``first_episode`` > 1: the number of the simulator's
-    first episode (a resumed run), ``resume_state``: where its robot and clock stood (the
-    checkpoint's ``sim_state``); ``learn_until`` > 0: the learner learns no episode that
-    starts once that many are learned in all (``learner_node.episodes``)."""
+    :func:`cr_sim.ros_support.lifecycle.realtime`); ``first_episode`` > 1: the number of
+    the simulator's first episode (a resumed run), ``resume_state``: where its robot and clock
+    stood (the checkpoint's ``sim_state``); ``learn_until`` > 0: the learner learns no
+    episode that starts once that many are learned in all (``learner_node.episodes``)."""
     from clis_modules.core.modules import condition_periods
 
     from clis_learner.core.config import load_clis_params

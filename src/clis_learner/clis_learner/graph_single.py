@@ -21,10 +21,10 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     from clis_modules.arbiter_node import ArbiterNode
     from clis_modules.module_node import ModuleNode
     from cr_sim.core.params import ConfigError
-    from cr_sim.executor import make_executor
-    from cr_sim.lifecycle import realtime, settle_heap
+    from cr_sim.ros_support.executor import make_executor
+    from cr_sim.ros_support.lifecycle import realtime, settle_heap
     from cr_sim.sim_node import SimNode, run
-    from cr_sim.trace import dump as dump_trace
+    from cr_sim.ros_support.trace import dump as dump_trace
     import rclpy
     from rclpy.clock import Clock, ClockType
 

@@ -48,7 +48,7 @@ from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from clis_modules.module_node import END_EVENTS, LATCHED, PARAMS_QOS
 from cr_sim.core.params import ConfigError, dataclass, param
 from cr_sim.interface import unmatched
-from cr_sim.trace import mark
+from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.clock import Clock, ClockType

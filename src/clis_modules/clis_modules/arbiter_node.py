@@ -36,7 +36,7 @@ import time
 
 from cr_sim.core.params import dataclass, param
 from cr_sim.core.sim import load_sim_params
-from cr_sim.trace import mark
+from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 import numpy as np

@@ -34,11 +34,16 @@ from typing import Any
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.executor import EXECUTORS, make_executor
-from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
-from cr_sim.profiling import start_profile, stop_profile
-from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
-from cr_sim.trace import dump as dump_trace
+from cr_sim.ros_support.executor import EXECUTORS, make_executor
+from cr_sim.ros_support.lifecycle import (
+    SHUTDOWN_RACES,
+    realtime_logged,
+    reraise_unless_shut_down,
+    settle_heap,
+)
+from cr_sim.ros_support.profiling import start_profile, stop_profile
+from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
+from cr_sim.ros_support.trace import dump as dump_trace
 import rclpy
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType, JumpThreshold
@@ -63,7 +68,7 @@ class GraphParams:
     arena_file: str = param(doc="arena description (the place module's map); '' = "
                                 'config/arena.yaml')
     executor: str = param(choices=EXECUTORS, doc="rclpy executor: 'lean' "
-                          "(cr_sim.executor.LeanExecutor), 'single' (rclpy's "
+                          "(cr_sim.ros_support.executor.LeanExecutor), 'single' (rclpy's "
                           "SingleThreadedExecutor) or 'events' (rclpy's EventsExecutor)")
     liveliness_lease: float = param(0.1, 60.0, doc='[s wall] DDS liveliness lease of the '
                                     'proposals: the arbiter knows a module died this soon')

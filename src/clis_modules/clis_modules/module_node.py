@@ -38,7 +38,7 @@ import time
 
 from cr_sim.core.params import ConfigError, dataclass, param
 from cr_sim.core.sim import load_sim_params
-from cr_sim.trace import mark
+from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
 import numpy as np

@@ -37,7 +37,7 @@ from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param,
 from cr_sim.core.robot import clamp_wheels, integrate_arc, wheels_to_twist
 from cr_sim.core.sim import IGNORED_SECTIONS, SimParams
 from cr_sim.interface import open_robot_interface
-from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
+from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor

@@ -35,13 +35,18 @@ from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
-from cr_sim.executor import make_executor
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
-from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
-from cr_sim.profiling import start_profile, stop_profile
-from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
-from cr_sim.trace import dump as dump_trace
-from cr_sim.trace import mark
+from cr_sim.ros_support.executor import make_executor
+from cr_sim.ros_support.lifecycle import (
+    SHUTDOWN_RACES,
+    realtime_logged,
+    reraise_unless_shut_down,
+    settle_heap,
+)
+from cr_sim.ros_support.profiling import start_profile, stop_profile
+from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
+from cr_sim.ros_support.trace import dump as dump_trace
+from cr_sim.ros_support.trace import mark
 
 START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
 #: Between the instants a lockstep holds at, callbacks (a reset, a command) are served every
@@ -80,7 +85,8 @@ class SimNodeParams:
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
     executor: str = param(choices=('lean', 'single'), doc="rclpy executor: 'lean' "
-                          "(cr_sim.executor.LeanExecutor) or 'single' (SingleThreadedExecutor)")
+                          "(cr_sim.ros_support.executor.LeanExecutor) or 'single' "
+                          '(SingleThreadedExecutor)')
     realtime_priority: int = param(0, 99, doc='SCHED_FIFO priority of the node (every thread); '
                                    '0 = default scheduling; > 0 also holds the CPU wake-up '
                                    'latency at 0 us (idle cores poll). Fail-soft without the '
