@@ -62,6 +62,7 @@ from typing import Any
 
 from clis_modules.graph_node import GraphNode, OnDemand, run_node
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from cr_sim.ros_support.rclpy_private import parameter_overrides
 from cr_sim.ros_support.ros_params import declare_from_config
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
@@ -124,7 +125,7 @@ class FoxgloveNode(GraphNode):
 
     def __init__(self) -> None:
         super().__init__('foxglove')        # the modules' clis.yaml sections (no scipy)
-        if 'use_sim_time' not in self._parameter_overrides:
+        if 'use_sim_time' not in parameter_overrides(self):
             # wall time only (timers, log times): no /clock reader of its own, one less for the
             # simulator to deliver to (/clock is subscribed to as a channel while shown)
             self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, False)])

@@ -42,6 +42,7 @@ from cr_sim.ros_support.lifecycle import (
     settle_heap,
 )
 from cr_sim.ros_support.profiling import start_profile, stop_profile
+from cr_sim.ros_support.rclpy_private import clock_subscription, parameter_overrides, set_clock
 from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.ros_support.trace import dump as dump_trace
 import rclpy
@@ -186,7 +187,7 @@ class GraphNode(Node):
     def __init__(self, name: str, section: str | None = None, section_cls: type | None = None,
                  clis_cls: type = ModuleSetParams, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
-        if 'use_sim_time' not in self._parameter_overrides:   # not set by the user: follow
+        if 'use_sim_time' not in parameter_overrides(self):   # not set by the user: follow
             self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, True)])
         graph_file = config_dir() / 'graph.yaml'
         graph = ros_parameters(graph_file, '/**')
@@ -233,7 +234,7 @@ class GraphNode(Node):
         :meth:`take_clock`) instead of being woken for every message: for a node whose
         callbacks are driven by other topics and wall timers (no sim-time timer of its own).
         The clock then moves, and :meth:`on_clock_advance` callbacks run, when it is read."""
-        sub = getattr(getattr(self, '_time_source', None), '_clock_sub', None)
+        sub = clock_subscription(self)
         if sub is None or not self.sim_time:
             return
         group = OnDemand()
@@ -248,7 +249,7 @@ class GraphNode(Node):
         """Bring the clock to the newest ``/clock`` waiting (:meth:`clock_on_demand`)."""
         msgs = take_all(self._clock_sub)
         if msgs:
-            self._time_source.clock_callback(msgs[-1])
+            set_clock(self, msgs[-1])
 
     @property
     def sim_time(self) -> bool:

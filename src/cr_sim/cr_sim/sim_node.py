@@ -44,6 +44,7 @@ from cr_sim.ros_support.lifecycle import (
     settle_heap,
 )
 from cr_sim.ros_support.profiling import start_profile, stop_profile
+from cr_sim.ros_support.rclpy_private import supported as rp_supported
 from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.ros_support.trace import dump as dump_trace
 from cr_sim.ros_support.trace import mark
@@ -352,10 +353,10 @@ class CommandWait:
     """
 
     def __init__(self, node: SimNode) -> None:
-        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+        from cr_sim.ros_support.rclpy_private import new_wait_set
         self.node = node
         self.sub = node.sub_cmd
-        self.wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
+        self.wait_set = new_wait_set((1, 0, 0, 0, 0, 0), node.context.handle)
 
     def wait(self, timeout: float) -> bool:
         """Wait up to ``timeout`` wall seconds for commands and take them all; whether one
@@ -380,7 +381,9 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     period = node.dt / node.cfg.speed_factor if node.cfg.speed_factor > 0 else 0.0
     next_wall = time.monotonic()
     ticks = 0
-    fast = CommandWait(node) if list(executor.get_nodes()) == [node] else None
+    # (a wait set of its own: rclpy's private API, for the rclpy it was written for only)
+    fast = CommandWait(node) if list(executor.get_nodes()) == [node] and rp_supported() \
+        else None
     while rclpy.ok():
         if node.holding:                  # the clock stands still (learner gate, lockstep)
             waiting_cmd = fast is not None and node.gate.state == 'command'
