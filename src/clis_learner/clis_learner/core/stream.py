@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
-from clis_modules.core.decider import Proposal
+from clis_modules.core.proposal import Proposal
 from clis_modules.core.modules import ModuleCore
 import numpy as np
 

@@ -28,8 +28,9 @@ from numpy.typing import ArrayLike
 
 from clis_modules.core.modules import ModuleCore
 from clis_modules.core.policy import ACTION_DIM
+from clis_modules.core.proposal import Proposal
 
-__all__ = ['Percept', 'Proposal', 'Decider']
+__all__ = ['Percept', 'Decider']
 
 
 class Percept(NamedTuple):
@@ -58,41 +59,6 @@ class Percept(NamedTuple):
     def from_observation(cls, t: float, obs) -> Percept:
         """From a :class:`cr_sim.core.sim.Observation` (any object with its fields)."""
         return cls(t, obs.dest_bearing, obs.d_o, obs.landmark_bearings)
-
-
-class Proposal(NamedTuple):
-    """A module's decision at time ``t`` (what a module node publishes; immutable, a named
-    tuple as :class:`Percept`: one per decision).
-
-    Attributes
-    ----------
-    module : str
-        The module's name.
-    t : float
-        Time of the sensor readings the decision used [s]: the decision time ``t_l``.
-    b : np.ndarray, shape (n,)
-        Features ``b_i(x(t_l))``.
-    u : np.ndarray, shape (2,)
-        Proposed ``(v_left, v_right)`` [m/s] drawn from (10), not clipped to the speed limit
-        (the learner's densities are of this action).
-    mean : np.ndarray, shape (2,)
-        Policy mean ``v_max W_i b`` [m/s].
-    sigma : float
-        Policy standard deviation at ``b`` [m/s].
-    value : float
-        ``V_i(x(t_l)) = w_i^T b`` (1)(2).
-    version : int
-        Version of the parameters the decision used (learned episodes; 0 = initial).
-    """
-
-    module: str
-    t: float
-    b: np.ndarray
-    u: np.ndarray
-    mean: np.ndarray
-    sigma: float
-    value: float
-    version: int = 0
 
 
 class Decider:
