@@ -17,6 +17,7 @@ from typing import NoReturn
 for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
+from clis_learner.cli_help import HelpFormatter  # noqa: E402
 from clis_learner.ros_env import apply_ros_env  # noqa: E402
 
 EPILOG = """\
@@ -36,17 +37,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f'{self.prog}: {message} (see {self.prog} --help)\n')
-
-
-class HelpFormatter(argparse.RawDescriptionHelpFormatter,
-                    argparse.ArgumentDefaultsHelpFormatter):
-    """Descriptions and epilogs as written, and every option's default in its help (not for
-    flags, required options and ``None`` defaults, whose help says what they mean)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        if action.required or action.default in (None, False, []):
-            return action.help or ''
-        return super()._get_help_string(action)
 
 
 def build_parser() -> argparse.ArgumentParser:

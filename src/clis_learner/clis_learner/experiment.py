@@ -36,7 +36,7 @@ from cr_sim.core.arena import load_arena
 from cr_sim.core.starts import draw_start
 import numpy as np
 
-from clis_learner.cli import HelpFormatter
+from clis_learner.cli_help import HelpFormatter
 from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job, warm_up
 
 #: Where the runs execute (``--backend``).

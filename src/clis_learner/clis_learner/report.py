@@ -247,7 +247,7 @@ def eval_report(runs: list[JobResult]) -> str:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from clis_learner.cli import HelpFormatter
+    from clis_learner.cli_help import HelpFormatter
     p = sub.add_parser('report', help='tables of measured results from experiment folders',
                        description=__doc__, formatter_class=HelpFormatter)
     p.add_argument('folders', type=Path, nargs='+', help='output folders of clis experiment')
