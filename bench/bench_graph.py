@@ -52,7 +52,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
-from clis_learner.graph import REALTIME_ABOVE  # noqa: E402
+from clis_learner.graph_plan import REALTIME_ABOVE  # noqa: E402
 from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 TICK = os.sysconf('SC_CLK_TCK')

@@ -57,8 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list:
     """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
-    from clis_learner import bags, compare, experiment, graph, report
-    return [experiment.register, report.register, graph.register, compare.register,
+    from clis_learner import bags, compare, experiment, graph_cli, report
+    return [experiment.register, report.register, graph_cli.register, compare.register,
             bags.register]
 
 

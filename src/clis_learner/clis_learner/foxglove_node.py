@@ -545,7 +545,7 @@ def plan_live_view(plan: Any, args: Any) -> str | None:
     """Add the live view to the children of a ``clis run`` (``--foxglove PORT``): one more
     process, up before the robot interface and stopped last (as the recorder). An error text
     for a bad port or ``--single-process``; else None."""
-    from clis_learner.graph import Child
+    from clis_learner.graph_plan import Child
     if not 1 <= args.foxglove <= 65535:
         return f'--foxglove {args.foxglove}: a TCP port in [1, 65535]'
     if getattr(args, 'single_process', False):
