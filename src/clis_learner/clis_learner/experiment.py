@@ -120,7 +120,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='override config/clis.yaml for all conditions, e.g. common.beta=2')
     p.add_argument('--sim-set', dest='sim_sets', action='append', default=[],
                    metavar='KEY=VALUE',
-                   help='override config/sim.yaml, e.g. sensors.ir_noise_sigma=0.0')
+                   help='override config/sim.yaml or the body (config/robot.yaml), e.g. '
+                        'sensors.ir_noise_sigma=0.0')
     p.add_argument('--workers', type=int, default=os.cpu_count() or 1,
                    help='parallel processes (all cores); with --backend ray and no '
                         '--address, the CPUs of the local Ray instance')

@@ -238,7 +238,8 @@ def _check_args(args: argparse.Namespace) -> str | None:
 
 def _check_param_values(flat: dict[str, Any], robot: str) -> None:
     """The values of a ``--params`` file for the nodes' own sections (``config/graph.yaml``,
-    the robot interface's ``node`` and sections of ``sim.yaml`` / ``bridge.yaml``), checked as
+    the robot interface's ``node`` and sections of ``sim.yaml`` / ``bridge.yaml``, the body of
+    ``robot.yaml``), checked as
     each node will (the CLIS keys are checked by the config loader): ConfigError naming the
     key and its range."""
     from clis_modules.arbiter_node import ArbiterNodeParams
@@ -254,6 +255,7 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
         ros_parameters,
         unflatten,
     )
+    from cr_sim.core.robot import robot_defaults
     from cr_sim.core.sim import IGNORED_SECTIONS, load_sim_params
     from cr_sim.sim_node import SimNodeParams
 
@@ -275,8 +277,9 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
                      if k.startswith(section + '.') and k[len(section) + 1:] in values}
             if given:
                 build(cls, unflatten({**values, **given}), where=section)
-    sim = flatten({k: v for k, v in ros_parameters(config_dir() / 'sim.yaml', 'sim').items()
-                   if k not in IGNORED_SECTIONS})
+    sim = flatten({**robot_defaults(),
+                   **{k: v for k, v in ros_parameters(config_dir() / 'sim.yaml', 'sim').items()
+                      if k not in IGNORED_SECTIONS}})
     given = {k: v for k, v in flat.items() if k in sim}
     if given:
         try:

@@ -37,7 +37,7 @@ import math
 import time
 
 from cr_sim.core.params import ConfigError, dataclass, param
-from cr_sim.core.sim import load_sim_params
+from cr_sim.core.robot import load_robot_params
 from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
@@ -91,7 +91,7 @@ class ModuleNode(GraphNode):
         module = make_module(self.clis, kind, periods[kind], *arena_map(arena))
         self.period = periods[kind]
         self.kind_index = MODULE_NAMES.index(kind)
-        self.decider = Decider(module, self._episode_rng(0), load_sim_params().robot.wheel_base)
+        self.decider = Decider(module, self._episode_rng(0), load_robot_params().wheel_base)
         # compiled kernels ready before the node joins the graph (Decider.warm_up: a kernel
         # compiled at the first decision would miss the lockstep's first instants)
         self.decider.warm_up(len(arena.landmarks))

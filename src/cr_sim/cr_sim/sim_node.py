@@ -33,6 +33,7 @@ from cr_sim import conversions as conv
 from cr_sim.core.arena import load_arena
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from cr_sim.core.robot import robot_defaults
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
@@ -109,7 +110,8 @@ class SimNode(Node):
 
     def __init__(self) -> None:
         super().__init__('sim')
-        defaults = ros_parameters(config_dir() / 'sim.yaml', 'sim')
+        # the body (config/robot.yaml) and the simulator's sections (config/sim.yaml)
+        defaults = {**robot_defaults(), **ros_parameters(config_dir() / 'sim.yaml', 'sim')}
         values = declare_from_config(self, defaults)     # errors name the ROS key (main)
         self.cfg = build(SimNodeParams, values.pop('node'), where='node')
         self.params = build(SimParams, values)

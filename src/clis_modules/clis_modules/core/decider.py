@@ -57,7 +57,7 @@ class Percept(NamedTuple):
 
     @classmethod
     def from_observation(cls, t: float, obs) -> Percept:
-        """From a :class:`cr_sim.core.sim.Observation` (any object with its fields)."""
+        """From a :class:`cr_sim.core.observation.Observation` (any object with its fields)."""
         return cls(t, obs.dest_bearing, obs.d_o, obs.landmark_bearings)
 
 

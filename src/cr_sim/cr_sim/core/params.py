@@ -267,7 +267,8 @@ def unflatten(flat: Mapping[str, Any]) -> dict:
 
 def load_params(cls: type, filename: str, node: str, path: str | os.PathLike | None = None,
                 overrides: Mapping[str, Any] | None = None,
-                ignore: tuple[str, ...] = (), where: str = '') -> Any:
+                ignore: tuple[str, ...] = (), where: str = '',
+                extra: Mapping[str, Any] | None = None) -> Any:
     """Build ``cls`` from the ``node: ros__parameters:`` section of a config file.
 
     Parameters
@@ -283,6 +284,9 @@ def load_params(cls: type, filename: str, node: str, path: str | os.PathLike | N
         key must exist in the file.
     ignore : tuple of str
         Top-level sections left out (read by someone else, e.g. the ROS node's ``node``).
+    extra : Mapping, optional
+        Top-level sections that come from another file (already read), added to the file's
+        before the overrides; the file must not have them.
 
     Raises
     ------
@@ -294,6 +298,11 @@ def load_params(cls: type, filename: str, node: str, path: str | os.PathLike | N
     p = Path(path) if path is not None else config_dir() / filename
     raw = ros_parameters(p, node=node)
     data = {k: copy.deepcopy(v) for k, v in raw.items() if k not in ignore}
+    for key, value in (extra or {}).items():
+        if key in data:
+            raise ConfigError(f'{p}: section {key} is not read from this file (it is '
+                              f'described once, elsewhere)')
+        data[key] = copy.deepcopy(value)
     try:
         for key, value in flatten(overrides or {}).items():
             set_dotted(data, key, value)
