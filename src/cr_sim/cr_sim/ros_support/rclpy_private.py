@@ -16,8 +16,8 @@ its commands through the executor (:func:`cr_sim.sim_node.run`). The parameter o
 (:func:`parameter_overrides`) are read wherever rclpy keeps them under that name.
 
 To support another rclpy: check every function below against its source (``rclpy/executors.py``:
-``_spin_once_impl``, ``_tasks``, ``_tasks_lock``, ``_is_shutdown``, ``_context``, ``_guard``,
-``_sigint_gc``, ``_take_*``; ``rclpy/node.py``: ``_timers`` ..., ``_parameter_overrides``,
+``_spin_once_impl``, ``_tasks``, ``_tasks_lock``, ``_is_shutdown``, ``_guard``, ``_sigint_gc``,
+``_take_*``; ``rclpy/node.py``: ``_timers`` ..., ``_parameter_overrides``,
 ``_time_source``; ``rclpy/time_source.py``: ``_clock_sub``, ``clock_callback``;
 ``rclpy/subscription.py``: ``_callback_type``), run ``test/test_executor.py`` on it, then
 change :data:`WRITTEN_FOR`.
@@ -88,11 +88,6 @@ class PrivateExecutor(SingleThreadedExecutor):
     def is_shut_down(self) -> bool:
         """Whether :meth:`shutdown` was called."""
         return self._is_shutdown
-
-    @property
-    def context(self):
-        """The executor's :class:`rclpy.context.Context`."""
-        return self._context
 
     def wake_guards(self) -> tuple:
         """The executor's own guard conditions, which a wait must include: the one that
