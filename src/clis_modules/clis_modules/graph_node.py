@@ -278,7 +278,7 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
         print(f'{name}: bad parameter: {exc}', file=sys.stderr, flush=True)
         rclpy.try_shutdown()
         raise SystemExit(2) from None
-    executor = make_executor(node.graph.executor)
+    executor = make_executor(node.graph.executor, node.get_logger())
     executor.add_node(node)
     settle_heap()
     if node.control_path and node.graph.realtime_priority:

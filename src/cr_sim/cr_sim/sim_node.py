@@ -423,7 +423,7 @@ def main(args: list[str] | None = None) -> None:
         print(f'sim: bad parameter: {exc}')
         rclpy.try_shutdown()
         raise SystemExit(2) from None
-    executor = make_executor(node.cfg.executor)
+    executor = make_executor(node.cfg.executor, node.get_logger())
     executor.add_node(node)
     settle_heap()
     if node.cfg.realtime_priority:
