@@ -30,7 +30,7 @@ from typing import Any
 import yaml
 
 __all__ = [
-    'ConfigError', 'param', 'build', 'load_yaml', 'ros_parameters', 'config_dir', 'replace',
+    'ConfigError', 'param', 'build', 'build_fields', 'load_yaml', 'ros_parameters', 'config_dir', 'replace',
     'dataclass', 'as_dict', 'set_dotted', 'flatten', 'unflatten', 'load_params',
 ]
 
@@ -120,12 +120,24 @@ def _convert(tp: Any, value: Any, where: str, meta: Mapping[str, Any]) -> Any:
 def build(cls: type, mapping: Mapping[str, Any], where: str = '') -> Any:
     """Construct the frozen dataclass ``cls`` from ``mapping``, validating every field.
 
+    A class with a ``__build_params__(mapping, where)`` classmethod builds itself (sections
+    whose names are not fields, such as the module instances of ``clis.yaml``); it calls
+    :func:`build_fields` for its own fields.
+
     Raises
     ------
     ConfigError
         Naming ``where.key`` for a missing key, an unknown key (with the allowed keys) or a
         value outside its declared range.
     """
+    custom = getattr(cls, '__build_params__', None)
+    if custom is not None:
+        return custom(mapping, where)
+    return build_fields(cls, mapping, where)
+
+
+def build_fields(cls: type, mapping: Mapping[str, Any], where: str = '') -> Any:
+    """:func:`build` of ``cls``'s own fields (no ``__build_params__``)."""
     if not isinstance(mapping, Mapping):
         raise ConfigError(f'{where or cls.__name__} must be a mapping')
     hints = typing.get_type_hints(cls)

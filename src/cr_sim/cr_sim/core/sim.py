@@ -622,6 +622,13 @@ class Simulator:
         _, bearing, d_o = self._sensors()
         return float(bearing[0]), d_o, bearing[1:]
 
+    def sense_all(self) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`sense` and every sensor besides: ``(dest_bearing, d_o, landmark_bearings,
+        ir, wheels)`` (every IR ray, read-only; the executed wheel velocities of the last
+        step), the fields of a module's ``Percept`` after its time; no draw of its own."""
+        ir, bearing, d_o = self._sensors()
+        return float(bearing[0]), d_o, bearing[1:], ir, np.array((self._wl, self._wr))
+
     def observe(self) -> Observation:
         """The full sensor model at the current time (cached until the next step/reset).
 
