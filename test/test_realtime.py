@@ -12,10 +12,9 @@ import sys
 import textwrap
 
 from clis_learner.graph_plan import plan_graph
+from cr_sim.ros_support import lifecycle
 from cr_sim.ros_support.lifecycle import realtime
 import pytest
-
-from cr_sim.ros_support import lifecycle
 
 
 def test_off_unless_asked():

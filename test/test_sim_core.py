@@ -18,6 +18,7 @@ from cr_sim.core.geometry import (
     wrap_angle,
     wrap_angles,
 )
+from cr_sim.core.observation import Observation
 from cr_sim.core.params import ConfigError, config_dir, load_yaml, replace
 from cr_sim.core.robot import (
     clamp_wheels,
@@ -26,7 +27,6 @@ from cr_sim.core.robot import (
     twist_to_wheels,
     wheels_to_twist,
 )
-from cr_sim.core.observation import Observation
 from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest

@@ -32,12 +32,13 @@ import sys
 import time
 from typing import Any
 
+from clis_modules.core.plugin import parse_condition as parse_modules
 from cr_sim.core.arena import load_arena
 from cr_sim.core.starts import draw_start
 import numpy as np
 
 from clis_learner.cli_help import HelpFormatter
-from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job, warm_up
+from clis_learner.core.runner import JobResult, JobSpec, run_job, warm_up
 
 #: Where the runs execute (``--backend``).
 BACKENDS = ('process', 'ray')
@@ -66,12 +67,14 @@ examples:
 
 
 def parse_condition(spec: str) -> tuple[str, dict[str, Any]]:
-    """``'async@common.beta=200@learner.resample=zoh'`` -> ``('async', {...})``."""
+    """``'async@common.beta=200@learner.resample=zoh'`` -> ``('async', {...})``; the condition
+    is ``TIMING:MODULE+MODULE...`` or a paper name (:func:`clis_modules.core.plugin.
+    parse_condition`)."""
     name, *sets = spec.strip().split('@')
-    if name not in CONDITIONS:
-        raise argparse.ArgumentTypeError(
-            f'unknown condition {name!r}: choose from {", ".join(CONDITIONS)} '
-            '(variants as NAME@key=value)')
+    try:
+        parse_modules(name)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f'{exc} (variants as CONDITION@key=value)') from None
     overrides = {}
     for item in sets:
         if '=' not in item:

@@ -1,13 +1,14 @@
 """``clis run``: start the CLIS node graph on the simulator and learn live.
 
 The graph is the robot interface (``cr_sim sim``; the real robot's bridge later), one node per
-module of the condition (``clis_modules innate|view|place``), the arbiter and the learner, each
-a separate process started exactly as ``ros2 run PKG EXE --ros-args ...`` would start it (the
-executables colcon installed in ``install/PKG/lib/PKG/``), all on the loopback and on this
-run's own ``ROS_DOMAIN_ID``. The simulator runs under sim time (``/clock``) as fast as the graph
-keeps up (``--speed 0``, default) or ``--speed X`` times real time (1: real time); after each
-episode it holds its clock until the learner has learned from it (``node.wait_for_learner``),
-as the real robot wanders to its next start while the learner learns.
+module of the condition (``clis_modules module``, named after its instance), the arbiter and
+the learner, each a separate process started exactly as ``ros2 run PKG EXE --ros-args ...``
+would start it (the executables colcon installed in ``install/PKG/lib/PKG/``), all on the
+loopback and on this run's own ``ROS_DOMAIN_ID``. The simulator runs under sim time
+(``/clock``) as fast as the graph keeps up (``--speed 0``, default) or ``--speed X`` times
+real time (1: real time); after each episode it holds its clock until the learner has learned
+from it (``node.wait_for_learner``), as the real robot wanders to its next start while the
+learner learns.
 
 While it runs, one line shows the learner's progress (from ``learner/progress``): learned
 episodes, successes in the last block, who acted, Pr(i | x_0), the real-time factor. At the end
@@ -51,7 +52,7 @@ import sys
 import time
 from typing import Any
 
-from clis_modules.core.modules import CONDITIONS
+from clis_modules.core.plugin import parse_condition
 
 from clis_learner.graph_plan import REALTIME_ABOVE, REALTIME_PRIORITY, plan_graph
 from clis_learner.run_curve import summary, write_curve
@@ -69,12 +70,22 @@ EPILOG = """examples:
 """
 
 
+def _condition(text: str) -> str:
+    """``--condition``: a condition (:func:`clis_modules.core.plugin.parse_condition`)."""
+    try:
+        parse_condition(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         'run', help='run the CLIS node graph on the simulator and learn live',
         description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument('--condition', default='async', choices=CONDITIONS,
-                   help='which modules run (default: %(default)s)')
+    p.add_argument('--condition', default='async', type=_condition,
+                   help='which modules run: TIMING:MODULE+MODULE... (async:innate+view+place+'
+                        'wall) or innate, view, place, sync, async (default: %(default)s)')
     p.add_argument('--episodes', type=int, default=100,
                    help='learned episodes before stopping (default: %(default)s)')
     p.add_argument('--speed', type=float, default=0.0,
@@ -349,7 +360,8 @@ def main(args: argparse.Namespace) -> int:
         print(f'clis run: {error}', file=sys.stderr)
         return EXIT_CONFIG
     if args.out is None:
-        args.out = Path('results/run') / (f'{args.condition}-seed{args.seed}-'
+        slug = args.condition.replace(':', '-').replace('+', '_')
+        args.out = Path('results/run') / (f'{slug}-seed{args.seed}-'
                                           f'{time.strftime("%Y%m%d-%H%M%S")}')
     out = args.out.resolve()
     if (out / 'episodes.csv').is_file() and args.resume is None:
@@ -359,11 +371,15 @@ def main(args: argparse.Namespace) -> int:
     # the graph's nodes (and this process's monitor) pass their data through shared memory
     from clis_learner.ros_env import use_graph_profile
     use_graph_profile()
-    plan = plan_graph(args.condition, args.seed, out, args.speed,
-                      str(args.resume.resolve()) if args.resume else '', args.arena,
-                      args.robot, args.device,
-                      str(args.record.resolve()) if args.record else '', args.realtime,
-                      args.first_episode, args.sim_state, args.version + args.episodes)
+    try:
+        plan = plan_graph(args.condition, args.seed, out, args.speed,
+                          str(args.resume.resolve()) if args.resume else '', args.arena,
+                          args.robot, args.device,
+                          str(args.record.resolve()) if args.record else '', args.realtime,
+                          args.first_episode, args.sim_state, args.version + args.episodes)
+    except ValueError as exc:                        # a module no plug-in or section names
+        print(f'clis run: --condition {args.condition}: {exc}', file=sys.stderr)
+        return EXIT_CONFIG
     if args.foxglove_wait and args.foxglove is None:
         print('clis run: --foxglove-wait waits for a client of the live view: add --foxglove '
               '[PORT]', file=sys.stderr)

@@ -46,6 +46,8 @@ class Child:
     #: None: a ROS node (``--ros-args`` from ``params``); else its own command-line arguments
     #: (the device emulator, which is not a ROS node)
     args: list[str] | None = None
+    #: ROS remapping rules (``-r FROM:=TO``): a module instance's node name, ``__node:=NAME``
+    remaps: dict[str, str] = field(default_factory=dict)
 
     def argv(self, params_files: list[Path]) -> list[str]:
         """``EXE --ros-args [--params-file F]... -p KEY:=VALUE ...`` (what ``ros2 run`` runs)."""
@@ -54,6 +56,8 @@ class Child:
         if self.args is not None:
             return [str(exe), *self.args]
         args = [str(exe), '--ros-args']
+        for key, value in self.remaps.items():
+            args += ['-r', f'{key}:={value}']
         for f in params_files:
             args += ['--params-file', str(f)]
         for key, value in self.params.items():
@@ -93,11 +97,13 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     the simulator's first episode (a resumed run), ``resume_state``: where its robot and clock
     stood (the checkpoint's ``sim_state``); ``learn_until`` > 0: the learner learns no
     episode that starts once that many are learned in all (``learner_node.episodes``)."""
-    from clis_modules.core.modules import condition_periods
+    from clis_modules.core.modules import condition_periods, condition_sensors
 
     from clis_learner.core.config import load_clis_params
-    periods = condition_periods(load_clis_params(), condition)
+    clis = load_clis_params()
+    periods = condition_periods(clis, condition)
     modules = [name for name, _ in periods]
+    sensors = condition_sensors(clis, condition)
     graph = {'graph.condition': condition, 'graph.seed': seed, 'graph.arena_file': arena}
     plan = GraphPlan()
     if record:                                       # the bag recorder: up first, stops last
@@ -117,18 +123,22 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         return {key: realtime + REALTIME_ABOVE.get(node, 0)} if realtime else {}
     plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', {
         **graph, **priority('graph.realtime_priority', 'arbiter')}))
-    for name in modules:
-        plan.children.append(Child(name, 'clis_modules', name, {
-            **graph, **priority('graph.realtime_priority', name)}))
+    for name in modules:                 # any plug-in: the generic module node, named
+        plan.children.append(Child(name, 'clis_modules', 'module', {
+            **graph, **priority('graph.realtime_priority', name)},
+            remaps={'__node': name}))
     if robot == 'bridge':
         _plan_bridge(plan, seed, speed, arena, device)
         return plan
     # the first episode waits until DDS has matched the graph's subscribers of the robot
     # interface (a message sent before is lost to them: the learner's first rewards, a
     # module's first readings): every node follows the episodes and the clock, the modules
-    # read the camera, the learner (and the recorder) the rewards, the arbiter commands
+    # that read the camera (their plug-ins' sensors) read it, the learner (and the recorder)
+    # the rewards, the arbiter commands
     nodes = len(modules) + 2 + bool(record)
-    matched = [f'episode:{nodes}', f'/clock:{len(modules) + 2}', f'camera:{len(modules)}',
+    cameras = sum('camera' in sensors[m] for m in modules)
+    matched = [f'episode:{nodes}', f'/clock:{len(modules) + 2}',
+               *([f'camera:{cameras}'] if cameras else []),
                f'reward:{1 + bool(record)}', 'cmd_vel:1']
     plan.children.append(Child('sim', 'cr_sim', 'sim', {
         'node.seed': seed, 'node.arena_file': arena, 'node.speed_factor': float(speed),

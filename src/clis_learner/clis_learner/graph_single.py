@@ -24,8 +24,8 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     from cr_sim.core.params import ConfigError
     from cr_sim.ros_support.executor import make_executor
     from cr_sim.ros_support.lifecycle import realtime, settle_heap
-    from cr_sim.sim_node import SimNode, run
     from cr_sim.ros_support.trace import dump as dump_trace
+    from cr_sim.sim_node import SimNode, run
     import rclpy
     from rclpy.clock import Clock, ClockType
 

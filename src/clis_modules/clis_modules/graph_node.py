@@ -54,7 +54,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import LivelinessPolicy, QoSProfile
 
-from clis_modules.core.modules import CONDITIONS, ModuleSetParams
+from clis_modules.core.modules import ModuleSetParams
+from clis_modules.core.plugin import parse_condition
 
 __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qos', 'run_node',
            'take_all']
@@ -64,7 +65,8 @@ __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qo
 class GraphParams:
     """Settings every CLIS graph node shares (``config/graph.yaml``, section ``graph``)."""
 
-    condition: str = param(choices=CONDITIONS, doc='which modules run, on which periods')
+    condition: str = param(doc='which modules run, on which periods: TIMING:MODULE+MODULE... '
+                           '(async:innate+view+place+wall) or innate, view, place, sync, async')
     seed: int = param(0, 2**31 - 1, doc='seed of the run (each node derives its own streams)')
     arena_file: str = param(doc="arena description (the place module's map); '' = "
                                 'config/arena.yaml')
@@ -81,6 +83,10 @@ class GraphParams:
                                    'latency at 0 us (idle cores poll). Fail-soft without the '
                                    'right to it')
 
+    def validate(self) -> None:
+        """``condition`` is one (:func:`~clis_modules.core.plugin.parse_condition`)."""
+        parse_condition(self.condition)
+
     def proposal_qos(self, depth: int = STREAM_DEPTH) -> QoSProfile:
         """QoS of a module's proposals with this ``liveliness_lease``: see :func:`proposal_qos`."""
         return proposal_qos(self.liveliness_lease, depth)
@@ -95,6 +101,10 @@ def proposal_qos(lease: float, depth: int = STREAM_DEPTH) -> QoSProfile:
     """
     return QoSProfile(depth=depth, liveliness=LivelinessPolicy.AUTOMATIC,
                       liveliness_lease_duration=Duration(seconds=lease))
+
+
+#: The sections of ``clis.yaml`` that are not module instances (some node reads each).
+_CLIS_SECTIONS = frozenset({'common', 'modules', 'arbiter', 'learner', 'instances'})
 
 
 class OnDemand(CallbackGroup):
@@ -192,8 +202,10 @@ class GraphNode(Node):
         graph_file = config_dir() / 'graph.yaml'
         graph = ros_parameters(graph_file, '/**')
         clis = ros_parameters(config_dir() / 'clis.yaml', '/**')
+        # the class's sections, and the module instances (every section no class names)
         sections = {f for f in clis_cls.__dataclass_fields__}
-        defaults = {k: v for k, v in clis.items() if k in sections}
+        others = _CLIS_SECTIONS - sections
+        defaults = {k: v for k, v in clis.items() if k in sections or k not in others}
         defaults['graph'] = graph['graph']
         if section is not None:
             defaults[section] = graph[section]

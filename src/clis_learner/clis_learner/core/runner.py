@@ -474,7 +474,8 @@ def solo_evaluation(agent: Agent, params: ClisParams, arena: Arena, sim_params: 
     for m in agent.modules:
         if not m.learned:
             continue
-        solo = Agent(params, solo_condition(m.name), arena, np.random.default_rng(0), sim_params.robot.wheel_base)
+        solo = Agent(params, solo_condition(m.name), arena, np.random.default_rng(0),
+                     sim_params.robot.wheel_base)
         solo.modules[0].w, solo.modules[0].W, solo.modules[0].sigma = m.w, m.W, m.sigma
         rows = evaluate(solo, arena, sim_params, spec.seed, spec.episodes, spec.eval_episodes)
         out[m.name] = {'reached': float(sum(r['reached'] for r in rows)), 'n': float(len(rows)),

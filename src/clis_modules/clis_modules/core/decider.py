@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import copy
 import math
+
 from cr_sim.core.kernels import odometry, odometry_step
 import numpy as np
 from numpy.typing import ArrayLike
@@ -118,9 +119,9 @@ class Decider:
         """Features ``b_i(x(t))`` at ``percept.t``, an instant at which the module does not
         decide, without deciding: no draw, and its state is left as it is (a module with a
         ``peek`` hook gives the features its next ``motion`` and ``sense`` would give at ``t``:
-        the place module's :meth:`MarkovLocalizer.peek`). The learner scores the module's density there when it
-        is the behaviour of another module's decision (paper (6): both densities at
-        ``x(l tau_i)``)."""
+        the place module's :meth:`MarkovLocalizer.peek`). The learner scores the module's
+        density there when it is the behaviour of another module's decision (paper (6): both
+        densities at ``x(l tau_i)``)."""
         m = self.module
         if m.peek_fn is None:
             return m.feature_fn(percept)

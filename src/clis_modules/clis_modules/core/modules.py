@@ -45,10 +45,10 @@ from numpy.typing import ArrayLike
 
 from clis_modules.core.arbiter import ArbiterParams
 from clis_modules.core.plugin import (
+    PAPER_CONDITIONS,
     FeatureModel,
     ModuleContext,
     ModulePlugin,
-    PAPER_CONDITIONS,
     Percept,
     get_plugin,
     parse_condition,

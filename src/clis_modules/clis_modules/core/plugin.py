@@ -19,6 +19,7 @@ all on one :class:`~clis_modules.core.modules.ModuleCore`. A *plug-in* provides 
                     ``policy`` (:class:`PolicyParams`) sections where learned
 ``defaults``        the section used when the config file has none (None: it must have one)
 ``sensors``         the robot topics it reads, of :data:`SENSORS`
+``topics``          what its node publishes besides ``~/proposal`` (``{'belief': type}``)
 ``learned``         whether (9) learns its policy
 ``model(...)``      its :class:`FeatureModel`: ``features(percept) -> b`` of ``n`` features,
                     the initial ``W`` (2, n) (zeros if None), its sigma, and optional hooks
@@ -33,7 +34,9 @@ without changing the state (the learner's ``behaviour_state: resampled``; ``odom
 before the first decision of an episode), ``at_pose(x, y, heading)`` to put the state where it
 is once the robot knows it stands at that pose (the place-selection map of Fig. 4; ``reset``
 undoes it) and ``display() -> (grid, cell, origin)`` for the belief a module node publishes
-(nav_msgs/OccupancyGrid).
+(nav_msgs/OccupancyGrid). Hooks with a state are bound methods of the objects holding it (not
+closures): a copy of a module (``copy.deepcopy``, a module node's warm-up) then copies the state
+once, shared by the copy's hooks.
 
 Plug-ins are found under the entry-point group :data:`ENTRY_POINT_GROUP` (``clis.modules``),
 as Gymnasium's third-party environments are: a package declares, in its ``pyproject.toml``::
@@ -190,6 +193,10 @@ class ModulePlugin:
         Of :data:`SENSORS`.
     learned : bool
         Whether its policy is learned by (9).
+    topics : Mapping
+        ``{relative topic: message type}`` its node publishes under its name besides
+        ``proposal`` (the place module's ``belief``, from its ``display`` hook), for the
+        recorder.
     """
 
     name: str = ''
@@ -197,6 +204,7 @@ class ModulePlugin:
     defaults: Mapping[str, Any] | None = None
     sensors: tuple[str, ...] = ('camera', 'ir')
     learned: bool = True
+    topics: Mapping[str, str] = {}
 
     def model(self, prm: Any, ctx: ModuleContext) -> FeatureModel:
         """The module's :class:`FeatureModel` for parameters ``prm`` in context ``ctx``."""
@@ -270,8 +278,9 @@ class Condition(NamedTuple):
 
 def parse_condition(text: str) -> Condition:
     """``TIMING:MODULE+MODULE...`` (or a name of :data:`PAPER_CONDITIONS`) as a
-    :class:`Condition`; the one parser of conditions (the module names are checked against the
-    configuration where the modules are made, :func:`~clis_modules.core.modules.condition_periods`).
+    :class:`Condition`; the one parser of conditions (the module names are checked against
+    the configuration where the modules are made,
+    :func:`~clis_modules.core.modules.condition_periods`).
 
     Raises
     ------

@@ -67,38 +67,45 @@ class Place(ModulePlugin):
     Params = PlaceParams
     sensors = ('camera', 'wheels')
     learned = True
+    topics = {'belief': 'nav_msgs/msg/OccupancyGrid'}
 
     def model(self, prm: PlaceParams, ctx: ModuleContext) -> FeatureModel:
         loc = MarkovLocalizer(prm.localization, ctx.landmarks_xy, ctx.half_size, ctx.boxes)
-        if prm.features.kind == 'rbf':
-            P = place_projection(loc, prm.features)  # noqa: N806 - (n_rbf, cells)
+        P = place_projection(loc, prm.features) if prm.features.kind == 'rbf' else None  # noqa: N806
+        b = _Belief(loc, P)
+        # the hooks are bound methods of the state's objects: a copy of the module (a module
+        # node's warm-up, copy.deepcopy) gets a copy of the state, shared by its hooks
+        return FeatureModel(loc.size if P is None else P.shape[0], b.features,
+                            reset=loc.reset, motion=loc.predict, sense=b.sense, peek=b.peek,
+                            at_pose=b.at_pose, display=b.display, state=loc)
 
-            def belief_features(belief: np.ndarray) -> np.ndarray:
-                return P @ belief
-            n = P.shape[0]
-        else:
-            def belief_features(belief: np.ndarray) -> np.ndarray:
-                return belief.copy()
-            n = loc.size
 
-        def features(p: Percept) -> np.ndarray:
-            return belief_features(loc.belief)
+class _Belief:
+    """The place module's features of its localizer's belief (module docstring)."""
 
-        def sense(p: Percept) -> None:
-            loc.update(p.landmark_bearings)
+    def __init__(self, loc: MarkovLocalizer, P: scipy.sparse.csr_matrix | None) -> None:  # noqa: N803
+        self.loc, self.P = loc, P
 
-        def peek(odometry: tuple | None, p: Percept) -> np.ndarray:
-            return belief_features(loc.peek(odometry, p.landmark_bearings))
+    def of(self, belief: np.ndarray) -> np.ndarray:
+        """The features of any belief: itself, or ``P b`` (``features.kind``)."""
+        return belief.copy() if self.P is None else self.P @ belief
 
-        def at_pose(x: float, y: float, heading: float) -> None:
-            onehot = np.zeros(loc.shape)
-            onehot[loc.cell_of(x, y, heading)] = 1.0
-            loc.set_belief(onehot)
+    def features(self, p: Percept) -> np.ndarray:
+        return self.of(self.loc.belief)
 
-        def display() -> tuple:
-            return loc.belief_grid, loc.cell, loc.origin
-        return FeatureModel(n, features, reset=loc.reset, motion=loc.predict, sense=sense,
-                            peek=peek, at_pose=at_pose, display=display, state=loc)
+    def sense(self, p: Percept) -> None:
+        self.loc.update(p.landmark_bearings)        # paper III-D: b(x) <- eta Pr(s | x) b(x)
+
+    def peek(self, odometry: tuple | None, p: Percept) -> np.ndarray:
+        return self.of(self.loc.peek(odometry, p.landmark_bearings))
+
+    def at_pose(self, x: float, y: float, heading: float) -> None:
+        onehot = np.zeros(self.loc.shape)
+        onehot[self.loc.cell_of(x, y, heading)] = 1.0
+        self.loc.set_belief(onehot)
+
+    def display(self) -> tuple:
+        return self.loc.belief_grid, self.loc.cell, self.loc.origin
 
 
 def place_projection(loc: MarkovLocalizer, fp: PlaceFeatureParams) -> scipy.sparse.csr_matrix:

@@ -30,7 +30,8 @@ from typing import Any
 import yaml
 
 __all__ = [
-    'ConfigError', 'param', 'build', 'build_fields', 'load_yaml', 'ros_parameters', 'config_dir', 'replace',
+    'ConfigError', 'param', 'build', 'build_fields', 'load_yaml', 'ros_parameters', 'config_dir',
+    'replace',
     'dataclass', 'as_dict', 'set_dotted', 'flatten', 'unflatten', 'load_params',
 ]
 
