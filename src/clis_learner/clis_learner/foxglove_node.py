@@ -74,7 +74,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
 from clis_learner.core.bag import BagError, message_definition
-from clis_learner.recorder_node import EXCLUDED, GRAPH_TOPICS, LATCHED_TOPICS, message_class
+from clis_learner.recorder_node import EXCLUDED, graph_topics, latched_topics, message_class
 from cr_sim import conversions as rconv
 
 __all__ = ['FoxgloveParams', 'FoxgloveNode', 'CONFIG_FILE', 'DEFAULT_PORT', 'HOST', 'PATH_TOPIC',
@@ -188,7 +188,9 @@ class FoxgloveNode(GraphNode):
             raise ConfigError(f'foxglove.port: cannot serve on {HOST}:{self.cfg.port} '
                               f'({exc})') from None
         self._polled = OnDemand(active=False)            # taken by _poll, never by the executor
-        wanted = {self.resolve_topic_name(t): typ for t, typ in GRAPH_TOPICS.items()}
+        wanted = {self.resolve_topic_name(t): typ
+                  for t, typ in graph_topics(self.graph.condition, self.clis).items()}
+        self.latched = latched_topics(self.graph.condition)
         if self.only:
             wanted = {t: wanted[t] for t in self.only if t in wanted}
         for topic, typ in wanted.items():
@@ -215,7 +217,7 @@ class FoxgloveNode(GraphNode):
                                       'not served', once=True)
             return
         offered = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
-        latched = any(topic == self.resolve_topic_name(t) for t in LATCHED_TOPICS)
+        latched = any(topic == self.resolve_topic_name(t) for t in self.latched)
         if offered:                                      # as the publishers offer it
             latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
         self.types[topic] = msg_type
