@@ -231,12 +231,15 @@ def eval_report(runs: list[JobResult]) -> str:
                 '(median over episodes of the per-episode median weight c_median -- the product'
                 " c_l of (8) under the paper's rules, the per-step min(rho_bar, rho_l) under "
                 'retrace -- and of the effective sample size (sum c)^2 / sum c^2 in steps; '
-                'mean over seeds).', '',
-                '| condition | view: median weight | view: ESS | place: median weight | '
-                'place: ESS |', '|---|---|---|---|---|']
+                'mean over seeds).', '']
+        # the learned modules (those evaluated alone), in the order of the conditions
+        learned = list(dict.fromkeys(name for lb in multi for name in by[lb][0].solo))
+        out += ['| condition | ' + ' | '.join(f'{name}: median weight | {name}: ESS'
+                                             for name in learned) + ' |',
+                '|---|' + '---|---|' * len(learned)]
         for lb in multi:
             cells = []
-            for name in ('view', 'place'):
+            for name in learned:
                 med, ess = [], []
                 for r in by[lb]:
                     last = r.episodes[2 * len(r.episodes) // 3:]
