@@ -190,7 +190,7 @@ class FoxgloveNode(GraphNode):
         self._polled = OnDemand(active=False)            # taken by _poll, never by the executor
         wanted = {self.resolve_topic_name(t): typ
                   for t, typ in graph_topics(self.graph.condition, self.clis).items()}
-        self.latched = latched_topics(self.graph.condition)
+        self.latched_names = latched_topics(self.graph.condition)
         if self.only:
             wanted = {t: wanted[t] for t in self.only if t in wanted}
         for topic, typ in wanted.items():
@@ -217,7 +217,7 @@ class FoxgloveNode(GraphNode):
                                       'not served', once=True)
             return
         offered = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
-        latched = any(topic == self.resolve_topic_name(t) for t in self.latched)
+        latched = any(topic == self.resolve_topic_name(t) for t in self.latched_names)
         if offered:                                      # as the publishers offer it
             latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
         self.types[topic] = msg_type

@@ -185,7 +185,7 @@ class RecorderNode(GraphNode):
         self.closed = False
         wanted = {self._absolute(t): typ
                   for t, typ in graph_topics(self.graph.condition, self.clis).items()}
-        self.latched = latched_topics(self.graph.condition)
+        self.latched_names = latched_topics(self.graph.condition)
         if self.only:
             wanted = {t: wanted[t] for t in self.only if t in wanted}
         # the episode topic first: clis run starts the simulator once it is subscribed; with
@@ -249,7 +249,7 @@ class RecorderNode(GraphNode):
         old = self.subs.pop(topic, None)
         if old is not None:
             self.destroy_subscription(old[1])
-        latched = any(topic == self._absolute(t) for t in self.latched)
+        latched = any(topic == self._absolute(t) for t in self.latched_names)
         offered = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
         if offered:                                     # adapt to the publishers (rosbag2)
             latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)

@@ -419,7 +419,7 @@ def build_module(name: str, plugin: ModulePlugin, prm: Any, common: CommonParams
     tau = float(prm.period if period is None else period)
     v_max = speed_limit(common, tau)
     ctx = ModuleContext(name, tau, v_max, common,
-                        np.asarray(landmarks_xy, dtype=np.float64), float(half_size),
+                        np.asarray(landmarks_xy, dtype=np.float64), half_size,
                         None if boxes is None else np.asarray(boxes, dtype=np.float64))
     fm = plugin.model(prm, ctx)
     n = int(fm.n)

@@ -127,8 +127,9 @@ class ModuleContext:
     common : CommonParams
     landmarks_xy : np.ndarray, shape (M, 2)
         Landmark positions [m], in the order of ``Percept.landmark_bearings``.
-    half_size : float
-        Half the side of the floor [m].
+    half_size : float or tuple of float
+        Half the side of the floor [m], or the half sides ``(x, y)`` of a rectangular one
+        (``Arena.floor()``).
     boxes : np.ndarray, shape (K, 4), optional
         Obstacles ``(xmin, ymin, xmax, ymax)`` [m].
     """
@@ -138,7 +139,7 @@ class ModuleContext:
     v_max: float
     common: Any
     landmarks_xy: np.ndarray
-    half_size: float
+    half_size: float | tuple[float, float]
     boxes: np.ndarray | None = None
 
 
@@ -219,6 +220,7 @@ _BUILTIN = {'innate': 'clis_modules.plugins.innate:Innate',
             'place': 'clis_modules.plugins.place:Place',
             'wall': 'clis_modules.plugins.wall:Wall'}
 _CACHE: dict[str, ModulePlugin] = {}
+_FOUND: dict[str, str] = {}
 
 
 def _load(target: str) -> Any:
@@ -232,11 +234,13 @@ def _load(target: str) -> Any:
 
 def plugins() -> dict[str, str]:
     """Every registered plug-in: ``{name: 'module:attr'}`` of the entry-point group (the
-    project's own also when it runs from a source tree without its metadata)."""
-    found = dict(_BUILTIN)
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        found[ep.name] = ep.value
-    return found
+    project's own also when it runs from a source tree without its metadata); the installed
+    packages are scanned once per process."""
+    if not _FOUND:
+        _FOUND.update(_BUILTIN)
+        for ep in entry_points(group=ENTRY_POINT_GROUP):
+            _FOUND[ep.name] = ep.value
+    return dict(_FOUND)
 
 
 def get_plugin(name: str) -> ModulePlugin:
