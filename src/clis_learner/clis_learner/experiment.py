@@ -48,11 +48,22 @@ BACKENDS = ('process', 'ray')
 _COST = {'innate': 1.0, 'view': 1.0, 'place': 3.0, 'sync': 4.5, 'async': 5.5}
 
 
+def _cost(condition: str) -> float:
+    """:data:`_COST` of a condition; of another set of modules, the sum of its modules'
+    (1 for a module not measured)."""
+    if condition in _COST:
+        return _COST[condition]
+    try:
+        return sum(_COST.get(m, 1.0) for m in parse_modules(condition).modules)
+    except ValueError:
+        return 1.0
+
+
 def longest_first(specs: list[JobSpec]) -> list[JobSpec]:
     """``specs`` with the most expensive runs first (stable): on a few workers the last runs
     then are short ones, and no worker waits idle for a long one to finish. The order does not
     change any result (every run is seeded on its own)."""
-    return sorted(specs, key=lambda s: -_COST.get(s.condition, 1.0)
+    return sorted(specs, key=lambda s: -_cost(s.condition)
                   * (s.episodes + 5 * s.eval_episodes))           # 5 starts A-E
 
 EPILOG = """\
