@@ -170,3 +170,28 @@ def test_run_interrupted_20_times_ends_with_the_uninterrupted_results_byte_for_b
 
     for name in ('episodes.csv', 'checkpoint.npz', 'curve.csv'):
         assert (out / name).read_bytes() == (ref / name).read_bytes(), name
+
+
+def test_a_ctrl_c_swallowed_while_clis_run_starts_still_stops_it(sandbox, monkeypatch):
+    """A Ctrl-C whose KeyboardInterrupt is lost before the graph's handler is installed (it
+    landed in a gc callback while ``clis run`` imported its modules: the run then learned all
+    its episodes and exited 0) still stops the run: ``clis`` remembers it from its start
+    (``clis_learner.ctrl_c``)."""
+    import clis_learner.graph_cli as graph_cli
+    params = sandbox / 'short.yaml'
+    params.write_text(PARAMS)
+    out = sandbox / 'run'
+    plan_graph = graph_cli.plan_graph
+
+    def swallowing(*args, **kwargs):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)                  # the handler runs here and raises
+        except KeyboardInterrupt:
+            pass                             # lost, as in a gc callback
+        return plan_graph(*args, **kwargs)
+    monkeypatch.setattr(graph_cli, 'plan_graph', swallowing)
+    args = argv(out, params, SPEED)
+    args[args.index('--episodes') + 1] = '40'
+    assert clis([*args, '--single-process']) == 130
+    assert learned(out) < 40

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from typing import NoReturn
 
@@ -17,6 +18,7 @@ from typing import NoReturn
 for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
+from clis_learner import ctrl_c  # noqa: E402
 from clis_learner.cli_help import HelpFormatter  # noqa: E402
 from clis_learner.ros_env import apply_ros_env  # noqa: E402
 
@@ -68,16 +70,24 @@ def main(argv: list[str] | None = None) -> int:
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         parser.error(f'--domain-id {args.domain_id} is out of range [0, 232]')
     apply_ros_env(network=args.network, domain_id=args.domain_id)
+    previous = ctrl_c.install()                  # a Ctrl-C is remembered (clis_learner.ctrl_c)
     try:
         if args.command == 'doctor':
             from clis_learner.doctor import run_doctor
-            return run_doctor()
-        return int(args.func(args) or 0)
+            code = run_doctor()
+        else:
+            code = int(args.func(args) or 0)
+        if not ctrl_c.interrupted():
+            return code
     except KeyboardInterrupt:
-        # Ctrl-C: one line and the shell's code for SIGINT, for every subcommand (what was
-        # written is complete: results are written atomically; `--resume` continues)
-        print(f'\nclis {args.command}: interrupted', file=sys.stderr)
-        return 130
+        pass
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    # Ctrl-C: one line and the shell's code for SIGINT, for every subcommand (what was written
+    # is complete: results are written atomically; `--resume` continues)
+    print(f'\nclis {args.command}: interrupted', file=sys.stderr)
+    return 130
 
 
 if __name__ == '__main__':

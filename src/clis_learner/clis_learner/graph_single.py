@@ -29,6 +29,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     import rclpy
     from rclpy.clock import Clock, ClockType
 
+    from clis_learner import ctrl_c
     from clis_learner.graph_plan import ros_literal
     from clis_learner.learner_node import LearnerNode
     from clis_learner.progress import Monitor, ProgressView
@@ -42,15 +43,12 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         for key, value in child.params.items():
             ros_args += ['-p', f'{key}:={ros_literal(value)}']
     rclpy.init(args=ros_args)
-    # a Ctrl-C is remembered: one that lands in rclpy's C++ (taking a message) comes out as
-    # another error (pybind11's RuntimeError), which is then an interruption too, not a crash
-    interrupted = []
-
-    def ctrl_c(signum, frame) -> None:
-        interrupted.append(signum)
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGINT, ctrl_c)
+    # a Ctrl-C is remembered (clis_learner.ctrl_c, since the command started): one that lands
+    # in rclpy's C++ (taking a message) comes out as another error (pybind11's RuntimeError),
+    # which is then an interruption too, not a crash; one swallowed where it was raised still
+    # stops the run (the wall timer below)
+    signal.signal(signal.SIGINT, ctrl_c.handler)
+    interrupted = ctrl_c.interrupted
     factories = {'learner': LearnerNode, 'arbiter': ArbiterNode, 'sim': SimNode,
                  'recorder': RecorderNode}
     nodes = []
@@ -63,7 +61,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
         signal.signal(signal.SIGINT, signal.default_int_handler)
-        if interrupted:
+        if interrupted():
             raise KeyboardInterrupt from None
         if isinstance(exc, (ConfigError, ValueError)):
             say(f'clis run: bad parameter: {exc}')
@@ -78,7 +76,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
                             sys.stderr.isatty() and not args.quiet, args.time_limit)
 
         def on_wall() -> None:
-            if interrupted:
+            if interrupted():
                 # a Ctrl-C whose KeyboardInterrupt was swallowed where it was raised (a gc
                 # callback, a __del__: "Exception ignored in ..."): the run still stops (seen
                 # in the test process, where hypothesis has a gc callback: the run went on to
@@ -99,7 +97,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     except KeyboardInterrupt:
         state['code'] = EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - reported, then the graph is stopped
-        if interrupted:
+        if interrupted():
             state['code'] = EXIT_INTERRUPTED
         elif rclpy.ok():
             raise

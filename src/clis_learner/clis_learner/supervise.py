@@ -16,7 +16,9 @@ from pathlib import Path
 import signal
 import subprocess
 import time
+from typing import Any
 
+from clis_learner import ctrl_c
 from clis_learner.graph_plan import Child, GraphPlan
 from clis_learner.progress import Monitor, ProgressView
 
@@ -125,9 +127,16 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
 
     rclpy.init(args=['clis_run', '--ros-args', '--disable-rosout-logs'],
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    interrupted = []
-    old = signal.signal(signal.SIGINT, lambda *_: interrupted.append(True))
-    signal.signal(signal.SIGTERM, lambda *_: interrupted.append(True))
+    # a Ctrl-C since the command started (clis_learner.ctrl_c) counts, even one whose
+    # KeyboardInterrupt was swallowed where it was raised
+    interrupted = [True] if ctrl_c.interrupted() else []
+
+    def stop(signum: int, frame: Any) -> None:
+        interrupted.append(True)
+        ctrl_c.remember(signum)
+
+    old = signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
     sup = Supervisor(plan, out, args.params, args.max_restarts, say)
     monitor = Monitor()
     code = EXIT_OK
