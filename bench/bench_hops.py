@@ -10,11 +10,12 @@ shared memory between the processes, loopback only), its own ROS_DOMAIN_ID.
 
 Measured at the graph's operating points: 4 round trips per second with every process idle
 in between (the robot at real time: an Async decision instant every 0.25 s), and back to back
-(as fast as it goes), with the :class:`cr_sim.executor.LeanExecutor` (the graph's default)
-and rclpy's SingleThreadedExecutor; and with the LeanExecutor with all three processes (every
-thread) under ``SCHED_FIFO`` priority 10 with idle cores polling, as ``clis run --realtime
-10`` runs the graph's sensor-to-command path (:func:`cr_sim.lifecycle.realtime`; needs root,
-CAP_SYS_NICE or ``ulimit -r``, else that row says so). p50 / p99 in ms.
+(as fast as it goes), with the :class:`cr_sim.ros_support.executor.LeanExecutor` (the graph's
+default) and rclpy's SingleThreadedExecutor; and with the LeanExecutor with all three processes
+(every thread) under ``SCHED_FIFO`` priority 10 with idle cores polling, as ``clis run
+--realtime 10`` runs the graph's sensor-to-command path
+(:func:`cr_sim.ros_support.lifecycle.realtime`; needs root, CAP_SYS_NICE or ``ulimit -r``, else
+that row says so). p50 / p99 in ms.
 
 Under all of it, the host: a busy loop pinned to each core (normal priority, nothing else
 running) reads the clock back to back and counts its stalls, the times the core was taken
@@ -42,10 +43,10 @@ import numpy as np
 HERE = Path(__file__).resolve()
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'cr_sim'))
-from clis_learner.graph import REALTIME_PRIORITY as FIFO_PRIORITY  # noqa: E402
+from clis_learner.graph_plan import REALTIME_PRIORITY as FIFO_PRIORITY  # noqa: E402
 from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
-from cr_sim.executor import make_executor  # noqa: E402
-from cr_sim.lifecycle import realtime  # noqa: E402
+from cr_sim.ros_support.executor import make_executor  # noqa: E402
+from cr_sim.ros_support.lifecycle import realtime  # noqa: E402
 
 GRAPH_PROFILE = HERE.parent.parent / 'config' / 'fastdds_graph.xml'
 

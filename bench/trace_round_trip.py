@@ -1,9 +1,9 @@
 """Where the sensor-to-command round trip goes: a traced ``clis run``, broken down per instant.
 
-Runs ``clis run --condition async`` with ``CLIS_TRACE`` (:mod:`cr_sim.trace`: every node
-marks the steps of each decision instant with ``CLOCK_MONOTONIC`` timestamps) for ``--seconds``
-of wall time after ``--warmup`` seconds, stops it, and breaks the round trip of every instant
-the simulator held its clock at into hops:
+Runs ``clis run --condition async`` with ``CLIS_TRACE`` (:mod:`cr_sim.ros_support.trace`: every
+node marks the steps of each decision instant with ``CLOCK_MONOTONIC`` timestamps) for
+``--seconds`` of wall time after ``--warmup`` seconds, stops it, and breaks the round trip of
+every instant the simulator held its clock at into hops:
 
     sim publishes the readings + /clock  -> module woken (its /clock callback)
     -> module decides (readings taken) -> module publishes its proposal

@@ -6,20 +6,21 @@ import argparse
 import csv
 from pathlib import Path
 
+from clis_learner.graph_plan import plan_graph
 import pytest
 from test_graph import clis_run, finish
 
-from clis_learner import graph
+from clis_learner import graph_cli
 
 
 def parse(*argv: str) -> argparse.Namespace:
     p = argparse.ArgumentParser()
-    graph.register(p.add_subparsers())
+    graph_cli.register(p.add_subparsers())
     return p.parse_args(['run', *argv])
 
 
 def test_plan_puts_the_emulator_and_the_bridge_in_place_of_the_simulator(tmp_path):
-    plan = graph.plan_graph('view', 3, tmp_path, 5.0, robot='bridge', device='emulator')
+    plan = plan_graph('view', 3, tmp_path, 5.0, robot='bridge', device='emulator')
     assert [c.name for c in plan.children] == ['learner', 'arbiter', 'view', 'emulator',
                                                'bridge']
     emu, bridge = plan.children[-2:]
@@ -28,7 +29,7 @@ def test_plan_puts_the_emulator_and_the_bridge_in_place_of_the_simulator(tmp_pat
     assert emu.args[emu.args.index('--speed') + 1] == '5.0'
     assert emu.argv([])[1:3] == ['--link', link], 'the emulator is not a ROS node'
     assert bridge.params['node.wait_for_learner'] and bridge.params['node.start'] == 'wander'
-    real = graph.plan_graph('view', 3, tmp_path, 1.0, robot='bridge', device='/dev/ttyUSB0')
+    real = plan_graph('view', 3, tmp_path, 1.0, robot='bridge', device='/dev/ttyUSB0')
     assert [c.name for c in real.children][-1] == 'bridge'
     assert 'emulator' not in [c.name for c in real.children]
     assert real.children[-1].params['node.device'] == '/dev/ttyUSB0'
@@ -36,12 +37,12 @@ def test_plan_puts_the_emulator_and_the_bridge_in_place_of_the_simulator(tmp_pat
 
 def test_bridge_runs_on_real_time_and_only_the_emulator_runs_faster():
     args = parse('--robot', 'bridge')
-    assert graph._check_args(args) is None and args.speed == 1.0
-    assert 'real time' in graph._check_args(parse('--robot', 'bridge', '--device',
-                                                  'udp://127.0.0.1:9750', '--speed', '5'))
-    assert 'single-process' in graph._check_args(parse('--robot', 'bridge',
-                                                       '--single-process'))
-    assert graph._check_args(parse('--robot', 'bridge', '--speed', '8')) is None
+    assert graph_cli._check_args(args) is None and args.speed == 1.0
+    assert 'real time' in graph_cli._check_args(parse('--robot', 'bridge', '--device',
+                                                      'udp://127.0.0.1:9750', '--speed', '5'))
+    assert 'single-process' in graph_cli._check_args(parse('--robot', 'bridge',
+                                                           '--single-process'))
+    assert graph_cli._check_args(parse('--robot', 'bridge', '--speed', '8')) is None
 
 
 @pytest.mark.ros

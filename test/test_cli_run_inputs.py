@@ -70,7 +70,7 @@ def cases(i: Path) -> list[tuple[str, list[str], str]]:
         ('--params bridge_value.yaml', ['--robot', 'bridge', '--params',
                                         str(i / 'bridge_value.yaml')],
          'node.watchdog = 9.0 is out of range: must be in [0.01, 0.3]'),
-        ('--condition', ['--condition', 'nope'], 'invalid choice'),
+        ('--condition', ['--condition', 'nope'], "unknown condition 'nope'"),
         ('--episodes', ['--episodes', 'abc'], 'invalid int'),
         ('--episodes', ['--episodes', '0'], 'at least 1'),
         ('--episodes', ['--episodes', '-3'], 'at least 1'),

@@ -1,17 +1,19 @@
-"""cr_sim.executor.LeanExecutor keeps rclpy's executor semantics (real rclpy and Fast DDS, one
-process, its own context): subscriptions, timers, guard conditions, services and clients,
-QoS events, coroutine callbacks, callback groups that turn themselves off, errors, and an
-entity destroyed by a callback."""
+"""cr_sim.ros_support.executor.LeanExecutor keeps rclpy's executor semantics (real rclpy and
+Fast DDS, one process, its own context): subscriptions, timers, guard conditions, services and
+clients, QoS events, coroutine callbacks, callback groups that turn themselves off, errors, and
+an entity destroyed by a callback."""
 
 from __future__ import annotations
 
 import time
 
-from clis_modules.graph_node import OnDemand
-from cr_sim.executor import LeanExecutor
+from clis_modules.graph_node import GraphNode, OnDemand
+from cr_sim.ros_support import rclpy_private
+from cr_sim.ros_support.executor import LeanExecutor, make_executor
 import pytest
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Int64
 from std_srvs.srv import SetBool
@@ -81,7 +83,7 @@ def test_coroutine_callbacks_and_tasks_finish_across_waits(ctx):
         done.append('coroutine')
 
     timer = node.create_timer(0.01, later)
-    assert spin_until(ex, lambda: ex._tasks)   # the first tick left a task in progress
+    assert spin_until(ex, ex.has_tasks)        # the first tick left a task in progress
     timer.cancel()
     gate.set_result(True)
     assert spin_until(ex, lambda: done)
@@ -90,7 +92,7 @@ def test_coroutine_callbacks_and_tasks_finish_across_waits(ctx):
 def test_a_created_task_runs_to_its_result(ctx):
     _, ex = make(ctx)
     task = ex.create_task(lambda: 7)
-    assert spin_until(ex, lambda: task.done() and not ex._tasks)
+    assert spin_until(ex, lambda: task.done() and not ex.has_tasks())
     assert not task.cancelled() and task.result() == 7
 
 
@@ -192,3 +194,45 @@ def test_spin_ends_when_the_context_shuts_down(ctx):
     except rclpy.executors.ExternalShutdownException:
         pass
     assert time.monotonic() - t0 < 5.0
+
+
+class _Log:
+    def __init__(self) -> None:
+        self.warnings: list[str] = []
+
+    def warning(self, text: str) -> None:
+        self.warnings.append(text)
+
+
+def test_the_lean_executor_is_made_for_the_rclpy_it_was_written_for(ctx):
+    assert rclpy_private.rclpy_version() == rclpy_private.WRITTEN_FOR, (
+        'the installed rclpy is not the one cr_sim.ros_support.rclpy_private was written for: '
+        'check its private members, then update WRITTEN_FOR')
+    log = _Log()
+    assert type(make_executor('lean', logger=log, context=ctx)) is LeanExecutor
+    assert not log.warnings
+
+
+@pytest.mark.parametrize('version', ['7.1.6', '8.0.0', None])
+def test_on_another_rclpy_the_executor_falls_back_to_rclpys_with_a_warning(ctx, monkeypatch,
+                                                                         version):
+    monkeypatch.setattr(rclpy_private, 'rclpy_version', lambda: version)
+    assert not rclpy_private.supported()
+    log = _Log()
+    executor = make_executor('lean', logger=log, context=ctx)
+    assert type(executor) is SingleThreadedExecutor
+    assert len(log.warnings) == 1 and rclpy_private.WRITTEN_FOR in log.warnings[0]
+    assert type(make_executor('single', logger=log, context=ctx)) is SingleThreadedExecutor
+    assert len(log.warnings) == 1                 # only 'lean' needs the private API
+
+
+def test_on_another_rclpy_a_graph_node_takes_its_clock_as_any_subscription(ctx, monkeypatch):
+    monkeypatch.setattr(rclpy_private, 'rclpy_version', lambda: '0.0.0')
+    node = GraphNode('fallback_probe', context=ctx)
+    try:
+        assert node.sim_time
+        node.clock_on_demand()
+        assert node._clock_sub is None             # /clock stays an ordinary subscription
+        assert rclpy_private.clock_subscription(node) is None
+    finally:
+        node.destroy_node()

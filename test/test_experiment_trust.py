@@ -268,10 +268,11 @@ def test_fig4_says_what_it_shows(drawn, tmp_path):
 
 @pytest.mark.parametrize('n', [3, 66, 1000])
 def test_a_run_of_any_length_draws_its_learning(drawn, tmp_path, n):
-    """``clis run``'s curve.png and selection.png (graph.write_curve) from its episodes.csv."""
+    """``clis run``'s curve.png and selection.png (run_curve.write_curve) from its
+    episodes.csv."""
     import csv
 
-    from clis_learner.graph import write_curve
+    from clis_learner.run_curve import write_curve
     rows = synthetic_run('async', 0, n).episodes
     with open(tmp_path / 'episodes.csv', 'w', newline='') as fh:
         w = csv.DictWriter(fh, [k for k in rows[0] if k != 'label'] + ['condition'])

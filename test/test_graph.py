@@ -343,7 +343,9 @@ def test_clis_run_bad_parameter_names_the_key(tmp_path):
 
 
 def _pid(parent: int, exe: str) -> int:
-    out = subprocess.run(['pgrep', '-P', str(parent), '-f', f'/lib/[a-z_]+/{exe}( |$)'],
+    # a node by its executable, or a module instance by its name (``-r __node:=NAME``)
+    out = subprocess.run(['pgrep', '-P', str(parent), '-f',
+                          f'(/lib/[a-z_]+/{exe}|__node:={exe})( |$)'],
                          capture_output=True, text=True).stdout.split()
     assert len(out) == 1, (exe, out)
     return int(out[0])

@@ -10,8 +10,9 @@ from clis_learner.core.config import load_clis_params
 from clis_learner.core.episodes import acting_shares, episode_row
 from clis_learner.core.memory import EpisodeMemory, StreamBuffer
 from clis_modules.core.arbiter import ArbiterParams, Selector, selection_probs
-from clis_modules.core.decider import Decider, Percept, Proposal
+from clis_modules.core.decider import Decider, Percept
 from clis_modules.core.modules import make_modules
+from clis_modules.core.proposal import Proposal
 from cr_sim.core.robot import integrate_arc, wheels_to_twist
 import numpy as np
 import pytest

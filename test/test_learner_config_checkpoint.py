@@ -34,7 +34,9 @@ def test_default_config_is_the_paper_preset():
 def test_config_file_is_a_ros_parameter_file_with_every_value_commented():
     path = config_dir() / 'clis.yaml'
     params = ros_parameters(path, node='/**')
-    assert set(params) == {'common', 'innate', 'view', 'place', 'arbiter', 'learner'}
+    assert set(params) == {'common', 'modules', 'innate', 'view', 'place', 'wall', 'arbiter',
+                           'learner'}
+    assert params['modules'] == ['innate', 'view', 'place', 'wall']
     for line in path.read_text().splitlines():
         s = line.strip()
         if s and not s.startswith('#') and not s.endswith(':') and ':' in s:

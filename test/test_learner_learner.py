@@ -203,7 +203,7 @@ def toy_module(name: str, fixed_forward: float | None = None) -> ModuleCore:
     W = np.full((2, grid.n), 0.0 if fixed_forward is None else fixed_forward)  # noqa: N806
     pp = None if fixed_forward is not None else PolicyParams(
         alpha=0.5, sigma=0.5, learn_sigma=False, sigma_min=0.01, sigma_max=1.0, alpha_sigma=0.0)
-    return ModuleCore(name, 1.0, 0.95, 1.0, grid.n, lambda s, d_o, lm: grid([s]),
+    return ModuleCore(name, 1.0, 0.95, 1.0, grid.n, lambda p: grid([p.dest_bearing]),
                       GaussianPolicy(W, 0.5, 1.0), LinearValue(grid.n, 0.0),
                       ValueParams(alpha=0.1, v_init=0.0), pp)
 

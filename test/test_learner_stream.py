@@ -12,8 +12,8 @@ from clis_learner.core.config import load_clis_params
 from clis_learner.core.learner import Learner
 from clis_learner.core.memory import EpisodeMemory
 from clis_learner.core.stream import EpisodeStream
-from clis_modules.core.decider import Proposal
 from clis_modules.core.modules import make_modules
+from clis_modules.core.proposal import Proposal
 import numpy as np
 import pytest
 

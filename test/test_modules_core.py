@@ -7,15 +7,11 @@ import math
 
 from clis_learner.core.config import load_clis_params
 from clis_modules.core.features import RbfGrid, uniform_centers
-from clis_modules.core.modules import (
-    innate_target_mean,
-    make_modules,
-    module_gamma,
-    place_projection,
-    speed_limit,
-)
+from clis_modules.core.modules import make_modules, module_gamma, speed_limit
 from clis_modules.core.policy import GaussianPolicy, log_density
 from clis_modules.core.value import LinearValue, gamma_i
+from clis_modules.plugins.innate import innate_target_mean
+from clis_modules.plugins.place import place_projection
 import numpy as np
 import pytest
 

@@ -16,7 +16,8 @@ from clis_learner.core.config import load_clis_params
 from clis_learner.core.learner import Learner
 from clis_learner.core.memory import EpisodeMemory
 from clis_modules.core.decider import Decider, Percept
-from clis_modules.core.modules import make_modules, place_projection
+from clis_modules.core.modules import make_modules
+from clis_modules.plugins.place import place_projection
 import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline

@@ -177,7 +177,7 @@ def test_a_ctrl_c_swallowed_while_clis_run_starts_still_stops_it(sandbox, monkey
     landed in a gc callback while ``clis run`` imported its modules: the run then learned all
     its episodes and exited 0) still stops the run: ``clis`` remembers it from its start
     (``clis_learner.ctrl_c``)."""
-    import clis_learner.graph as graph_cli
+    import clis_learner.graph_cli as graph_cli
     params = sandbox / 'short.yaml'
     params.write_text(PARAMS)
     out = sandbox / 'run'

@@ -15,7 +15,7 @@ from pathlib import Path
 import subprocess
 import sys
 
-from clis_learner.graph import _keep_rows_until
+from clis_learner.graph_cli import _keep_rows_until
 import numpy as np
 import pytest
 

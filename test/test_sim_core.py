@@ -18,14 +18,21 @@ from cr_sim.core.geometry import (
     wrap_angle,
     wrap_angles,
 )
-from cr_sim.core.params import ConfigError, config_dir, load_yaml
-from cr_sim.core.robot import clamp_wheels, integrate_arc, twist_to_wheels, wheels_to_twist
-from cr_sim.core.sim import Observation, Simulator, load_sim_params
+from cr_sim.core.observation import Observation
+from cr_sim.core.params import ConfigError, config_dir, load_yaml, replace
+from cr_sim.core.robot import (
+    clamp_wheels,
+    integrate_arc,
+    load_robot_params,
+    twist_to_wheels,
+    wheels_to_twist,
+)
+from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest
 import yaml
 
-R = 0.11          # robot radius of config/sim.yaml (checked below)
+R = 0.11          # robot radius of config/robot.yaml (checked below)
 VMAX = 1.3
 DT = 0.05
 
@@ -92,12 +99,31 @@ def test_config_values_used_by_these_tests(params):
     assert len(params.sensors.ir_angles_deg) == 7
 
 
-def test_sim_yaml_out_of_range_names_the_key(tmp_path):
+def test_robot_yaml_out_of_range_names_the_file_and_the_key(tmp_path):
+    data = load_yaml(config_dir() / 'robot.yaml')
+    data['/**']['ros__parameters']['robot']['radius'] = 5.0
+    path = write_yaml(tmp_path / 'robot.yaml', data)
+    with pytest.raises(ConfigError, match=r'robot\.yaml: robot\.radius.*out of range'):
+        load_robot_params(path)
+    with pytest.raises(ConfigError, match=r'robot\.yaml: robot\.radius.*out of range'):
+        load_sim_params(robot_path=path)
+
+
+def test_the_body_is_described_once_in_robot_yaml(tmp_path):
+    """The simulator's parameters take the body from robot.yaml; a sim file with a robot
+    section of its own is refused, naming robot.yaml."""
+    body = load_robot_params()
+    assert load_sim_params().robot == body
+    data = load_yaml(config_dir() / 'robot.yaml')
+    data['/**']['ros__parameters']['robot']['wheel_base'] = 0.2
+    assert load_sim_params(robot_path=write_yaml(tmp_path / 'r.yaml', data)).robot == \
+        replace(body, wheel_base=0.2)
     data = load_yaml(config_dir() / 'sim.yaml')
-    data['sim']['ros__parameters']['robot']['radius'] = 5.0
-    path = write_yaml(tmp_path / 'sim.yaml', data)
-    with pytest.raises(ConfigError, match=r'robot\.radius.*out of range'):
-        load_sim_params(path)
+    assert 'robot' not in data['sim']['ros__parameters']
+    data['sim']['ros__parameters']['robot'] = {'radius': 0.11, 'wheel_base': 0.16,
+                                               'v_wheel_max': 1.3}
+    with pytest.raises(ConfigError, match=r'section robot.*robot\.yaml'):
+        load_sim_params(write_yaml(tmp_path / 'sim.yaml', data))
 
 
 def test_sim_yaml_missing_and_unknown_keys(tmp_path):

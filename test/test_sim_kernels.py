@@ -94,7 +94,7 @@ def test_hold_is_repeated_steps_bit_for_bit(world):
     stepped = Simulator(arena, params, np.random.default_rng(1))
     rng = np.random.default_rng(6)
     # deciders of a module that localizes (only its odometry is used here)
-    d_held, d_step = (Decider(SimpleNamespace(localizer=object(), reset=lambda: None), rng,
+    d_held, d_step = (Decider(SimpleNamespace(on_motion=print, reset=lambda: None), rng,
                               params.robot.wheel_base) for _ in range(2))
     dt = params.episode.dt
     ends = 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from cr_sim.core.arena import load_arena
-from cr_sim.core.params import config_dir, ros_parameters
+from cr_sim.core.robot import load_robot_params
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
@@ -146,7 +146,7 @@ def test_sim_node_publishes_interface_at_declared_rates_and_obeys_cmd_vel(probe)
         # far over the 1.3 m/s wheel limit, turning in place (driving on, the robot would reach
         # the destination: the episode ends and, auto_reset off, no more odom): the wheels
         # are clipped to +-1.3 m/s, so the body turns at 2 x 1.3 / wheel_base at most
-        base = ros_parameters(config_dir() / 'sim.yaml', 'sim')['robot']['wheel_base']
+        base = load_robot_params().wheel_base
         w_max = 2 * 1.3 / base
         msg = TwistStamped()
         msg.twist.angular.z = 100.0

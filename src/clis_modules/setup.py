@@ -17,7 +17,7 @@ setup(
     zip_safe=True,
     maintainer='CLIS maintainers',
     maintainer_email='clis@example.org',
-    description='CLIS learning modules (innate, view, place) and the arbiter.',
+    description='CLIS learning modules (plug-ins: innate, view, place, wall) and the arbiter.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
@@ -25,6 +25,14 @@ setup(
             'view = clis_modules.module_node:main_view',
             'place = clis_modules.module_node:main_place',
             'arbiter = clis_modules.arbiter_node:main',
+            'module = clis_modules.module_node:main',
+        ],
+        # the module plug-ins (clis_modules.core.plugin; docs/modules.md)
+        'clis.modules': [
+            'innate = clis_modules.plugins.innate:Innate',
+            'view = clis_modules.plugins.view:View',
+            'place = clis_modules.plugins.place:Place',
+            'wall = clis_modules.plugins.wall:Wall',
         ],
     },
 )

@@ -183,9 +183,10 @@ def _condition_of(bag: Any, names: set[str]) -> str | None:
     cond = bag.custom_data.get('condition')
     if cond:
         return cond
+    from clis_modules.core.plugin import solo_condition
     found = {t.rsplit('/', 2)[-2] for t in names if t.endswith('/proposal')}
-    if len(found) == 1:
-        return found.pop()
+    if len(found) == 1:                          # one module: on its own period
+        return solo_condition(found.pop())
     return None
 
 
@@ -198,9 +199,10 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
     'condition': ..., 'damaged': [messages]}``. Raises ValueError (bad input) or
     :class:`~clis_learner.core.bag.BagError` (a bag that cannot be opened).
     """
-    from clis_modules.core.modules import CONDITIONS, arena_map, make_modules
+    from clis_modules.core.modules import arena_map, make_modules
+    from clis_modules.core.plugin import parse_condition
     from cr_sim.core.arena import load_arena
-    from cr_sim.core.params import ros_parameters
+    from cr_sim.core.params import config_dir, ros_parameters
 
     from clis_learner.core.bag import BagError, BagReader, bag_info
     from clis_learner.core.checkpoint import load_checkpoint, save_checkpoint
@@ -211,11 +213,14 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
     first = readers[0]
     topics = set(bag_info(bags[0]).topics)
     condition = condition or _condition_of(first, topics)
-    if condition not in CONDITIONS:
-        raise ValueError(f'condition {condition!r}: give --condition (one of '
-                         f'{", ".join(CONDITIONS)}); {bags[0]} does not say')
+    if condition is None:
+        raise ValueError(f'give --condition (TIMING:MODULE+... or innate, view, place, sync, '
+                         f'async): {bags[0]} does not say')
+    parse_condition(condition)                   # raises naming the form
     overrides: dict[str, Any] = {}
-    sections = set(ClisParams.__dataclass_fields__)
+    # the sections of the CLIS parameters (the fixed ones and the module instances)
+    sections = set(ClisParams.__dataclass_fields__) | set(
+        ros_parameters(config_dir() / 'clis.yaml', '/**'))
     for f in params_files or []:
         values = ros_parameters(f, '/**')
         overrides.update({k: v for k, v in values.items() if k in sections})

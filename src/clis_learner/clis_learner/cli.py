@@ -19,6 +19,7 @@ for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
 from clis_learner import ctrl_c  # noqa: E402
+from clis_learner.cli_help import HelpFormatter  # noqa: E402
 from clis_learner.ros_env import apply_ros_env  # noqa: E402
 
 EPILOG = """\
@@ -40,17 +41,6 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f'{self.prog}: {message} (see {self.prog} --help)\n')
 
 
-class HelpFormatter(argparse.RawDescriptionHelpFormatter,
-                    argparse.ArgumentDefaultsHelpFormatter):
-    """Descriptions and epilogs as written, and every option's default in its help (not for
-    flags, required options and ``None`` defaults, whose help says what they mean)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        if action.required or action.default in (None, False, []):
-            return action.help or ''
-        return super()._get_help_string(action)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog='clis', description='CLIS with asynchronous modules on ROS 2 (Uchibe & Doya).',
@@ -69,8 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list:
     """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
-    from clis_learner import bags, compare, experiment, graph, report
-    return [experiment.register, report.register, graph.register, compare.register,
+    from clis_learner import bags, compare, experiment, graph_cli, report
+    return [experiment.register, report.register, graph_cli.register, compare.register,
             bags.register]
 
 

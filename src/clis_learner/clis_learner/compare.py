@@ -139,7 +139,7 @@ def _main(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from clis_learner.cli import HelpFormatter
+    from clis_learner.cli_help import HelpFormatter
     p = sub.add_parser('compare', help='compare two sets of runs block by block (95%% bands)',
                        description=__doc__, formatter_class=HelpFormatter)
     p.add_argument('--a', type=Path, nargs='+', required=True, help='folders of set A')

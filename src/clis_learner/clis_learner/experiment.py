@@ -32,12 +32,13 @@ import sys
 import time
 from typing import Any
 
+from clis_modules.core.plugin import parse_condition as parse_modules
 from cr_sim.core.arena import load_arena
 from cr_sim.core.starts import draw_start
 import numpy as np
 
-from clis_learner.cli import HelpFormatter
-from clis_learner.core.runner import CONDITIONS, JobResult, JobSpec, run_job, warm_up
+from clis_learner.cli_help import HelpFormatter
+from clis_learner.core.runner import JobResult, JobSpec, run_job, warm_up
 
 #: Where the runs execute (``--backend``).
 BACKENDS = ('process', 'ray')
@@ -47,11 +48,22 @@ BACKENDS = ('process', 'ray')
 _COST = {'innate': 1.0, 'view': 1.0, 'place': 3.0, 'sync': 4.5, 'async': 5.5}
 
 
+def _cost(condition: str) -> float:
+    """:data:`_COST` of a condition; of another set of modules, the sum of its modules'
+    (1 for a module not measured)."""
+    if condition in _COST:
+        return _COST[condition]
+    try:
+        return sum(_COST.get(m, 1.0) for m in parse_modules(condition).modules)
+    except ValueError:
+        return 1.0
+
+
 def longest_first(specs: list[JobSpec]) -> list[JobSpec]:
     """``specs`` with the most expensive runs first (stable): on a few workers the last runs
     then are short ones, and no worker waits idle for a long one to finish. The order does not
     change any result (every run is seeded on its own)."""
-    return sorted(specs, key=lambda s: -_COST.get(s.condition, 1.0)
+    return sorted(specs, key=lambda s: -_cost(s.condition)
                   * (s.episodes + 5 * s.eval_episodes))           # 5 starts A-E
 
 EPILOG = """\
@@ -66,12 +78,14 @@ examples:
 
 
 def parse_condition(spec: str) -> tuple[str, dict[str, Any]]:
-    """``'async@common.beta=200@learner.resample=zoh'`` -> ``('async', {...})``."""
+    """``'async@common.beta=200@learner.resample=zoh'`` -> ``('async', {...})``; the condition
+    is ``TIMING:MODULE+MODULE...`` or a paper name (:func:`clis_modules.core.plugin.
+    parse_condition`)."""
     name, *sets = spec.strip().split('@')
-    if name not in CONDITIONS:
-        raise argparse.ArgumentTypeError(
-            f'unknown condition {name!r}: choose from {", ".join(CONDITIONS)} '
-            '(variants as NAME@key=value)')
+    try:
+        parse_modules(name)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f'{exc} (variants as CONDITION@key=value)') from None
     overrides = {}
     for item in sets:
         if '=' not in item:
@@ -120,7 +134,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='override config/clis.yaml for all conditions, e.g. common.beta=2')
     p.add_argument('--sim-set', dest='sim_sets', action='append', default=[],
                    metavar='KEY=VALUE',
-                   help='override config/sim.yaml, e.g. sensors.ir_noise_sigma=0.0')
+                   help='override config/sim.yaml or the body (config/robot.yaml), e.g. '
+                        'sensors.ir_noise_sigma=0.0')
     p.add_argument('--workers', type=int, default=os.cpu_count() or 1,
                    help='parallel processes (all cores); with --backend ray and no '
                         '--address, the CPUs of the local Ray instance')

@@ -20,7 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
-MODULE_COLOURS = {'innate': 'black', 'view': 'magenta', 'place': 'green'}
+MODULE_COLOURS = {'innate': 'black', 'view': 'magenta', 'place': 'green', 'wall': 'tab:orange'}
 STARTS = ('A', 'B', 'C', 'D', 'E')
 
 

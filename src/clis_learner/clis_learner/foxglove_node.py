@@ -62,7 +62,8 @@ from typing import Any
 
 from clis_modules.graph_node import GraphNode, OnDemand, run_node
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.ros_params import declare_from_config
+from cr_sim.ros_support.rclpy_private import parameter_overrides
+from cr_sim.ros_support.ros_params import declare_from_config
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry, Path
@@ -73,7 +74,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
 from clis_learner.core.bag import BagError, message_definition
-from clis_learner.recorder_node import EXCLUDED, GRAPH_TOPICS, LATCHED_TOPICS, message_class
+from clis_learner.recorder_node import EXCLUDED, graph_topics, latched_topics, message_class
 from cr_sim import conversions as rconv
 
 __all__ = ['FoxgloveParams', 'FoxgloveNode', 'CONFIG_FILE', 'DEFAULT_PORT', 'HOST', 'PATH_TOPIC',
@@ -124,7 +125,7 @@ class FoxgloveNode(GraphNode):
 
     def __init__(self) -> None:
         super().__init__('foxglove')        # the modules' clis.yaml sections (no scipy)
-        if 'use_sim_time' not in self._parameter_overrides:
+        if 'use_sim_time' not in parameter_overrides(self):
             # wall time only (timers, log times): no /clock reader of its own, one less for the
             # simulator to deliver to (/clock is subscribed to as a channel while shown)
             self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, False)])
@@ -187,7 +188,9 @@ class FoxgloveNode(GraphNode):
             raise ConfigError(f'foxglove.port: cannot serve on {HOST}:{self.cfg.port} '
                               f'({exc})') from None
         self._polled = OnDemand(active=False)            # taken by _poll, never by the executor
-        wanted = {self.resolve_topic_name(t): typ for t, typ in GRAPH_TOPICS.items()}
+        wanted = {self.resolve_topic_name(t): typ
+                  for t, typ in graph_topics(self.graph.condition, self.clis).items()}
+        self.latched_names = latched_topics(self.graph.condition)
         if self.only:
             wanted = {t: wanted[t] for t in self.only if t in wanted}
         for topic, typ in wanted.items():
@@ -214,7 +217,7 @@ class FoxgloveNode(GraphNode):
                                       'not served', once=True)
             return
         offered = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
-        latched = any(topic == self.resolve_topic_name(t) for t in LATCHED_TOPICS)
+        latched = any(topic == self.resolve_topic_name(t) for t in self.latched_names)
         if offered:                                      # as the publishers offer it
             latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
         self.types[topic] = msg_type
@@ -544,7 +547,7 @@ def plan_live_view(plan: Any, args: Any) -> str | None:
     """Add the live view to the children of a ``clis run`` (``--foxglove PORT``): one more
     process, up before the robot interface and stopped last (as the recorder). An error text
     for a bad port or ``--single-process``; else None."""
-    from clis_learner.graph import Child
+    from clis_learner.graph_plan import Child
     if not 1 <= args.foxglove <= 65535:
         return f'--foxglove {args.foxglove}: a TCP port in [1, 65535]'
     if getattr(args, 'single_process', False):

@@ -17,35 +17,31 @@ __all__ = ['run_single']
 
 
 def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
-    """Run ``plan`` (a :class:`clis_learner.graph.GraphPlan`) in this process; an exit code."""
+    """Run ``plan`` (a :class:`clis_learner.graph_plan.GraphPlan`) in this process; an exit
+    code."""
     from clis_modules.arbiter_node import ArbiterNode
     from clis_modules.module_node import ModuleNode
     from cr_sim.core.params import ConfigError
-    from cr_sim.executor import make_executor
-    from cr_sim.lifecycle import realtime, settle_heap
+    from cr_sim.ros_support.executor import make_executor
+    from cr_sim.ros_support.lifecycle import realtime, settle_heap
+    from cr_sim.ros_support.trace import dump as dump_trace
     from cr_sim.sim_node import SimNode, run
-    from cr_sim.trace import dump as dump_trace
     import rclpy
     from rclpy.clock import Clock, ClockType
 
     from clis_learner import ctrl_c
-    from clis_learner.graph import (
-        EXIT_CONFIG,
-        EXIT_INTERRUPTED,
-        EXIT_OK,
-        Monitor,
-        ProgressView,
-        _ros_literal,
-    )
+    from clis_learner.graph_plan import ros_literal
     from clis_learner.learner_node import LearnerNode
+    from clis_learner.progress import Monitor, ProgressView
     from clis_learner.recorder_node import RecorderNode
+    from clis_learner.supervise import EXIT_CONFIG, EXIT_INTERRUPTED, EXIT_OK
 
     ros_args = ['clis_run', '--ros-args']
     for f in args.params:
         ros_args += ['--params-file', str(f)]
     for child in plan.children:
         for key, value in child.params.items():
-            ros_args += ['-p', f'{key}:={_ros_literal(value)}']
+            ros_args += ['-p', f'{key}:={ros_literal(value)}']
     rclpy.init(args=ros_args)
     # a Ctrl-C is remembered (clis_learner.ctrl_c, since the command started): one that lands
     # in rclpy's C++ (taking a message) comes out as another error (pybind11's RuntimeError),

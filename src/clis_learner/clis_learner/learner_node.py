@@ -48,7 +48,7 @@ from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from clis_modules.module_node import END_EVENTS, LATCHED, PARAMS_QOS
 from cr_sim.core.params import ConfigError, dataclass, param
 from cr_sim.interface import unmatched
-from cr_sim.trace import mark
+from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.clock import Clock, ClockType
@@ -265,7 +265,7 @@ class LearnerNode(GraphNode):
                 # and `clis run --resume` drops the row and runs the episode again (the other
                 # way round the row would be lost)
                 self._append_csv(closed.row)
-                # and where the simulator stood: a resumed run goes on from there (graph.py)
+                # and where the simulator stood: a resumed run goes on from there (graph_cli.py)
                 sim = self.resume_states.get(closed.episode)
                 save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,
                                 {'version': self.version, 'episode': closed.episode,

@@ -46,7 +46,8 @@ from clis_learner.core.bag import BagError, BagWriter, qos_dict
 from clis_learner.core.config import ClisParams, params_hash
 from clis_learner.ros_env import RECORDER_PROFILE_NAME, use_profile
 
-__all__ = ['RecorderParams', 'RecorderNode', 'GRAPH_TOPICS', 'LATCHED_TOPICS', 'qos_to_dict',
+__all__ = ['RecorderParams', 'RecorderNode', 'GRAPH_TOPICS', 'LATCHED_TOPICS', 'graph_topics',
+           'latched_topics', 'qos_to_dict',
            'qos_from_dict', 'message_class', 'main']
 
 #: Topics of the graph and their types (relative names; docs/graph.md, docs/robot.md).
@@ -71,6 +72,26 @@ GRAPH_TOPICS = {
 #: Topics published transient local (their last messages reach a late subscriber).
 LATCHED_TOPICS = frozenset({'episode', 'arena', 'innate/params', 'view/params', 'place/params',
                             'learner/progress'})
+
+
+def graph_topics(condition: str, clis: Any) -> dict[str, str]:
+    """:data:`GRAPH_TOPICS` with the topics of ``condition``'s module instances (``proposal``,
+    ``params`` and what each plug-in declares in its ``topics``)."""
+    from clis_modules.core.plugin import parse_condition
+    topics = dict(GRAPH_TOPICS)
+    for name in parse_condition(condition).modules:
+        plugin = clis.module(name)[0]
+        topics[f'{name}/proposal'] = topics[f'{name}/params'] = 'sensor_msgs/msg/JointState'
+        topics.update({f'{name}/{t}': typ for t, typ in plugin.topics.items()})
+    return topics
+
+
+def latched_topics(condition: str) -> frozenset:
+    """:data:`LATCHED_TOPICS` with the ``params`` of ``condition``'s module instances."""
+    from clis_modules.core.plugin import parse_condition
+    return LATCHED_TOPICS | {f'{name}/params' for name in parse_condition(condition).modules}
+
+
 #: Never recorded unless asked for by name.
 EXCLUDED = frozenset({'/rosout', '/parameter_events'})
 
@@ -162,7 +183,9 @@ class RecorderNode(GraphNode):
         self.subs: dict[str, tuple[str, Any]] = {}       # topic -> (type, subscription)
         self._polled = _Polled()
         self.closed = False
-        wanted = {self._absolute(t): typ for t, typ in GRAPH_TOPICS.items()}
+        wanted = {self._absolute(t): typ
+                  for t, typ in graph_topics(self.graph.condition, self.clis).items()}
+        self.latched_names = latched_topics(self.graph.condition)
         if self.only:
             wanted = {t: wanted[t] for t in self.only if t in wanted}
         # the episode topic first: clis run starts the simulator once it is subscribed; with
@@ -226,7 +249,7 @@ class RecorderNode(GraphNode):
         old = self.subs.pop(topic, None)
         if old is not None:
             self.destroy_subscription(old[1])
-        latched = any(topic == self._absolute(t) for t in LATCHED_TOPICS)
+        latched = any(topic == self._absolute(t) for t in self.latched_names)
         offered = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
         if offered:                                     # adapt to the publishers (rosbag2)
             latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)

@@ -12,9 +12,10 @@ import argparse
 from pathlib import Path
 import sys
 
+from clis_modules.core.plugin import TIMINGS, condition_order, solo_condition
 import numpy as np
 
-from clis_learner.core.runner import CONDITIONS, JobResult
+from clis_learner.core.runner import JobResult
 from clis_learner.figures import MIN_BAND_SEEDS, STARTS, band
 
 
@@ -49,7 +50,7 @@ def load_runs(folders: list[Path]) -> list[JobResult]:
             except (ValueError, TypeError, OSError) as exc:
                 raise ReportError(f'{path}: not a readable run ({exc})') from None
     # the paper's order (innate, view, place, sync, async), each followed by its variants
-    return sorted(runs, key=lambda r: (CONDITIONS.index(r.spec['condition']),
+    return sorted(runs, key=lambda r: (condition_order(r.spec['condition']),
                                        r.spec['label'] != r.spec['condition'],
                                        r.spec['label'], r.spec['seed']))
 
@@ -204,8 +205,10 @@ def eval_report(runs: list[JobResult]) -> str:
     def single(multi_label: str, name: str) -> str | None:
         """The single-module label of the same preset (``improved:place`` for
         ``improved:async``), else the paper preset's."""
-        prefix = multi_label.split(':')[0] + ':' if ':' in multi_label.split('@')[0] else ''
-        for cand in (prefix + name, name):
+        head = multi_label.split('@')[0]
+        first = head.split(':')[0]
+        prefix = first + ':' if ':' in head and first not in TIMINGS else ''
+        for cand in (prefix + name, name, prefix + solo_condition(name), solo_condition(name)):
             if cand in by and len(by[cand][0].modules) == 1:
                 return cand
         return None
@@ -228,12 +231,15 @@ def eval_report(runs: list[JobResult]) -> str:
                 '(median over episodes of the per-episode median weight c_median -- the product'
                 " c_l of (8) under the paper's rules, the per-step min(rho_bar, rho_l) under "
                 'retrace -- and of the effective sample size (sum c)^2 / sum c^2 in steps; '
-                'mean over seeds).', '',
-                '| condition | view: median weight | view: ESS | place: median weight | '
-                'place: ESS |', '|---|---|---|---|---|']
+                'mean over seeds).', '']
+        # the learned modules (those evaluated alone), in the order of the conditions
+        learned = list(dict.fromkeys(name for lb in multi for name in by[lb][0].solo))
+        out += ['| condition | ' + ' | '.join(f'{name}: median weight | {name}: ESS'
+                                             for name in learned) + ' |',
+                '|---|' + '---|---|' * len(learned)]
         for lb in multi:
             cells = []
-            for name in ('view', 'place'):
+            for name in learned:
                 med, ess = [], []
                 for r in by[lb]:
                     last = r.episodes[2 * len(r.episodes) // 3:]
@@ -247,7 +253,7 @@ def eval_report(runs: list[JobResult]) -> str:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from clis_learner.cli import HelpFormatter
+    from clis_learner.cli_help import HelpFormatter
     p = sub.add_parser('report', help='tables of measured results from experiment folders',
                        description=__doc__, formatter_class=HelpFormatter)
     p.add_argument('folders', type=Path, nargs='+', help='output folders of clis experiment')

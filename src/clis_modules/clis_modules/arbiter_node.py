@@ -35,8 +35,8 @@ import math
 import time
 
 from cr_sim.core.params import dataclass, param
-from cr_sim.core.sim import load_sim_params
-from cr_sim.trace import mark
+from cr_sim.core.robot import load_robot_params
+from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 import numpy as np
@@ -95,7 +95,7 @@ class ArbiterNode(GraphNode):
         self.names = names
         self.selector = Selector(names, gammas, v_max, taus, self.clis.arbiter, common.beta,
                                  np.random.default_rng([self.graph.seed, 3]))
-        self.wheel_base = load_sim_params().robot.wheel_base
+        self.wheel_base = load_robot_params().wheel_base
         cmd_type = TwistStamped if self.cfg.cmd_vel_stamped else Twist
         self.pub_cmd = self.create_publisher(cmd_type, 'cmd_vel', rconv.STREAM_DEPTH)
         self.pub_selection = self.create_publisher(JointState, '~/selection', rconv.STREAM_DEPTH)

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from sensor_msgs.msg import JointState
 
-from clis_modules.core.decider import Proposal
+from clis_modules.core.proposal import Proposal
 
 __all__ = ['PROPOSAL_FIELDS', 'PARAMS_FIELDS', 'proposal_msg', 'proposal_from_msg',
            'params_msg', 'params_from_msg', 'selection_msg', 'selection_from_msg',
@@ -72,7 +72,7 @@ def _check(msg: JointState, fields: Sequence[str], what: str) -> None:
 
 
 def proposal_msg(p: Proposal, decided_at: float) -> JointState:
-    """A module's :class:`~clis_modules.core.decider.Proposal`, decided at clock time
+    """A module's :class:`~clis_modules.core.proposal.Proposal`, decided at clock time
     ``decided_at`` [s]."""
     msg = JointState(name=list(PROPOSAL_FIELDS))
     msg.header.stamp, msg.header.frame_id = to_time(p.t), p.module

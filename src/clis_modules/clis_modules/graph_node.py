@@ -34,11 +34,17 @@ from typing import Any
 from cr_sim.conversions import STREAM_DEPTH
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.executor import EXECUTORS, make_executor
-from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
-from cr_sim.profiling import start_profile, stop_profile
-from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
-from cr_sim.trace import dump as dump_trace
+from cr_sim.ros_support.executor import EXECUTORS, make_executor
+from cr_sim.ros_support.lifecycle import (
+    SHUTDOWN_RACES,
+    realtime_logged,
+    reraise_unless_shut_down,
+    settle_heap,
+)
+from cr_sim.ros_support.profiling import start_profile, stop_profile
+from cr_sim.ros_support.rclpy_private import clock_subscription, parameter_overrides, set_clock
+from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
+from cr_sim.ros_support.trace import dump as dump_trace
 import rclpy
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType, JumpThreshold
@@ -48,7 +54,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import LivelinessPolicy, QoSProfile
 
-from clis_modules.core.modules import CONDITIONS, ModuleSetParams
+from clis_modules.core.modules import ModuleSetParams
+from clis_modules.core.plugin import parse_condition
 
 __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qos', 'run_node',
            'take_all']
@@ -58,12 +65,13 @@ __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qo
 class GraphParams:
     """Settings every CLIS graph node shares (``config/graph.yaml``, section ``graph``)."""
 
-    condition: str = param(choices=CONDITIONS, doc='which modules run, on which periods')
+    condition: str = param(doc='which modules run, on which periods: TIMING:MODULE+MODULE... '
+                           '(async:innate+view+place+wall) or innate, view, place, sync, async')
     seed: int = param(0, 2**31 - 1, doc='seed of the run (each node derives its own streams)')
     arena_file: str = param(doc="arena description (the place module's map); '' = "
                                 'config/arena.yaml')
     executor: str = param(choices=EXECUTORS, doc="rclpy executor: 'lean' "
-                          "(cr_sim.executor.LeanExecutor), 'single' (rclpy's "
+                          "(cr_sim.ros_support.executor.LeanExecutor), 'single' (rclpy's "
                           "SingleThreadedExecutor) or 'events' (rclpy's EventsExecutor)")
     liveliness_lease: float = param(0.1, 60.0, doc='[s wall] DDS liveliness lease of the '
                                     'proposals: the arbiter knows a module died this soon')
@@ -74,6 +82,10 @@ class GraphParams:
                                    '0 = default scheduling; > 0 also holds the CPU wake-up '
                                    'latency at 0 us (idle cores poll). Fail-soft without the '
                                    'right to it')
+
+    def validate(self) -> None:
+        """``condition`` is one (:func:`~clis_modules.core.plugin.parse_condition`)."""
+        parse_condition(self.condition)
 
     def proposal_qos(self, depth: int = STREAM_DEPTH) -> QoSProfile:
         """QoS of a module's proposals with this ``liveliness_lease``: see :func:`proposal_qos`."""
@@ -89,6 +101,10 @@ def proposal_qos(lease: float, depth: int = STREAM_DEPTH) -> QoSProfile:
     """
     return QoSProfile(depth=depth, liveliness=LivelinessPolicy.AUTOMATIC,
                       liveliness_lease_duration=Duration(seconds=lease))
+
+
+#: The sections of ``clis.yaml`` that are not module instances (some node reads each).
+_CLIS_SECTIONS = frozenset({'common', 'modules', 'arbiter', 'learner', 'instances'})
 
 
 class OnDemand(CallbackGroup):
@@ -181,13 +197,15 @@ class GraphNode(Node):
     def __init__(self, name: str, section: str | None = None, section_cls: type | None = None,
                  clis_cls: type = ModuleSetParams, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
-        if 'use_sim_time' not in self._parameter_overrides:   # not set by the user: follow
+        if 'use_sim_time' not in parameter_overrides(self):   # not set by the user: follow
             self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, True)])
         graph_file = config_dir() / 'graph.yaml'
         graph = ros_parameters(graph_file, '/**')
         clis = ros_parameters(config_dir() / 'clis.yaml', '/**')
+        # the class's sections, and the module instances (every section no class names)
         sections = {f for f in clis_cls.__dataclass_fields__}
-        defaults = {k: v for k, v in clis.items() if k in sections}
+        others = _CLIS_SECTIONS - sections
+        defaults = {k: v for k, v in clis.items() if k in sections or k not in others}
         defaults['graph'] = graph['graph']
         if section is not None:
             defaults[section] = graph[section]
@@ -228,7 +246,7 @@ class GraphNode(Node):
         :meth:`take_clock`) instead of being woken for every message: for a node whose
         callbacks are driven by other topics and wall timers (no sim-time timer of its own).
         The clock then moves, and :meth:`on_clock_advance` callbacks run, when it is read."""
-        sub = getattr(getattr(self, '_time_source', None), '_clock_sub', None)
+        sub = clock_subscription(self)
         if sub is None or not self.sim_time:
             return
         group = OnDemand()
@@ -243,7 +261,7 @@ class GraphNode(Node):
         """Bring the clock to the newest ``/clock`` waiting (:meth:`clock_on_demand`)."""
         msgs = take_all(self._clock_sub)
         if msgs:
-            self._time_source.clock_callback(msgs[-1])
+            set_clock(self, msgs[-1])
 
     @property
     def sim_time(self) -> bool:
@@ -272,7 +290,7 @@ def run_node(factory: Callable[[], GraphNode], name: str, doc: str | None,
         print(f'{name}: bad parameter: {exc}', file=sys.stderr, flush=True)
         rclpy.try_shutdown()
         raise SystemExit(2) from None
-    executor = make_executor(node.graph.executor)
+    executor = make_executor(node.graph.executor, node.get_logger())
     executor.add_node(node)
     settle_heap()
     if node.control_path and node.graph.realtime_priority:

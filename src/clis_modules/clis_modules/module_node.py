@@ -1,14 +1,18 @@
-"""``ros2 run clis_modules innate|view|place``: one CLIS module deciding on its own timer.
+"""``ros2 run clis_modules module --ros-args -r __node:=NAME``: one CLIS module instance deciding
+on its own timer (``innate``, ``view``, ``place``: the same for the paper's three).
 
-Every ``tau_i`` of the clock (its timer; under sim time also the ``/clock`` reaching
-``t_0 + l tau_i``, whichever comes first; 250/500/1200 ms in Async, the slowest period for all
-in Sync) the module reads the latest ``camera`` and ``ir`` readings (the place
-module also every ``wheels`` reading since its last decision: odometry), decides through the
+The node's name is the module instance's (``config/clis.yaml``; a plug-in's name for a plug-in
+with defaults, docs/modules.md): any plug-in runs in this one executable. Every ``tau_i`` of
+the clock (its timer; under sim time also the ``/clock`` reaching ``t_0 + l tau_i``, whichever
+comes first; 250/500/1200 ms in Async, the slowest period for all in Sync) the module reads the
+latest readings of the sensors its plug-in declares, of ``camera``, ``ir`` and ``wheels`` (with
+a ``motion`` hook, the place module's, every ``wheels`` reading since its last decision:
+odometry), decides through the
 same :class:`~clis_modules.core.decider.Decider` as the headless runner, and publishes its
 proposal on ``~/proposal`` (sensor_msgs/JointState: sampled wheel command, policy mean and
 sigma, V_i(x), features, stamped with the time of the sensor readings it used; layout in
 :mod:`clis_modules.conversions`). The place module also publishes its belief on ``~/belief``
-(nav_msgs/OccupancyGrid, marginal over heading).
+(nav_msgs/OccupancyGrid, marginal over heading; any module with a ``display`` hook).
 
 The readings are taken when a decision is due, not as they arrive
 (:class:`~clis_modules.graph_node.OnDemand`): they wait in their subscriptions' queues
@@ -35,10 +39,11 @@ from __future__ import annotations
 from collections import deque
 import math
 import time
+import zlib
 
 from cr_sim.core.params import ConfigError, dataclass, param
-from cr_sim.core.sim import load_sim_params
-from cr_sim.trace import mark
+from cr_sim.core.robot import load_robot_params
+from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
 import numpy as np
@@ -81,8 +86,9 @@ class ModuleNodeParams:
 class ModuleNode(GraphNode):
     """Thin glue around a :class:`Decider` (module docstring)."""
 
-    def __init__(self, kind: str) -> None:
-        super().__init__(kind, 'module', ModuleNodeParams)
+    def __init__(self, kind: str | None = None) -> None:
+        super().__init__(kind or 'module', 'module', ModuleNodeParams)
+        kind = self.get_name()                  # the instance (``-r __node:=NAME``)
         periods = dict(condition_periods(self.clis, self.graph.condition))
         if kind not in periods:
             raise ConfigError(f'graph.condition = {self.graph.condition!r} has no {kind} '
@@ -90,8 +96,11 @@ class ModuleNode(GraphNode):
         arena = self.arena()
         module = make_module(self.clis, kind, periods[kind], *arena_map(arena))
         self.period = periods[kind]
-        self.kind_index = MODULE_NAMES.index(kind)
-        self.decider = Decider(module, self._episode_rng(0), load_sim_params().robot.wheel_base)
+        # the draws' stream: the paper's modules by their index, others by their name
+        self.kind_index = (MODULE_NAMES.index(kind) if kind in MODULE_NAMES
+                           else zlib.crc32(kind.encode()))
+        self.sensors = set(module.sensors) | ({'wheels'} if module.on_motion else set())
+        self.decider = Decider(module, self._episode_rng(0), load_robot_params().wheel_base)
         # compiled kernels ready before the node joins the graph (Decider.warm_up: a kernel
         # compiled at the first decision would miss the lockstep's first instants)
         self.decider.warm_up(len(arena.landmarks))
@@ -110,25 +119,30 @@ class ModuleNode(GraphNode):
         self.last_grid = -math.inf
         self.marked = -math.inf                 # the grid instant last marked due
         self.camera: deque = deque(maxlen=READINGS_DEPTH)  # (stamp, dest, landmark bearings)
-        self.ir: deque = deque(maxlen=READINGS_DEPTH)      # (stamp, d_o)
+        self.ir: deque = deque(maxlen=READINGS_DEPTH)      # (stamp, d_o, every ray)
+        self.last_wheels = np.zeros(2)          # the wheel reading last taken
         self.wheels: deque = deque(maxlen=2000)  # (stamp, v_left, v_right)
         self.wheels_t = -math.inf               # stamp of the last wheels reading used
         self.landmarks = [lm.name for lm in arena.landmarks]
+        self._unseen = np.full(len(self.landmarks), math.nan)   # no camera read: none seen
         self.trace_clock, self.trace_decide, self.trace_pub = (
             f'{kind}_clock', f'{kind}_decide', f'{kind}_pub')
 
         self.pub = self.create_publisher(JointState, '~/proposal', self.graph.proposal_qos())
         self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
-                           if self.decider.localizes else None)
-        # the readings, taken at the decision instants (module docstring)
+                           if module.display is not None else None)
+        # the readings of the plug-in's sensors, taken at the decision instants (docstring)
         self.on_demand = OnDemand()
-        self.readings = [(self.create_subscription(JointState, 'camera', self._on_camera,
-                                                   READINGS_DEPTH, callback_group=self.on_demand),
-                          self._add_camera),
-                         (self.create_subscription(LaserScan, 'ir', self._on_ir, READINGS_DEPTH,
-                                                   callback_group=self.on_demand),
-                          self._add_ir)]
-        if self.decider.localizes:
+        self.readings = []
+        if 'camera' in self.sensors:
+            self.readings.append((self.create_subscription(
+                JointState, 'camera', self._on_camera, READINGS_DEPTH,
+                callback_group=self.on_demand), self._add_camera))
+        if 'ir' in self.sensors or 'camera' not in self.sensors:
+            self.readings.append((self.create_subscription(
+                LaserScan, 'ir', self._on_ir, READINGS_DEPTH, callback_group=self.on_demand),
+                self._add_ir))
+        if 'wheels' in self.sensors:
             self.readings.append((self.create_subscription(
                 JointState, 'wheels', self._on_wheels, rconv.STREAM_DEPTH,
                 callback_group=self.on_demand), self._add_wheels))
@@ -153,7 +167,7 @@ class ModuleNode(GraphNode):
 
     def _add_ir(self, msg: LaserScan) -> None:
         t, ranges = rconv.ir_from_msg(msg)
-        self.ir.append((t, float(np.min(ranges)) if ranges.size else math.inf))
+        self.ir.append((t, float(np.min(ranges)) if ranges.size else math.inf, ranges))
 
     def _add_wheels(self, msg: JointState) -> None:
         t, v = rconv.wheels_from_msg(msg)
@@ -283,7 +297,7 @@ class ModuleNode(GraphNode):
         elif not self.stall_said and now - self.due_wall >= STALL_WARNING:
             self.stall_said = True
             cams = [round(t, 3) for t, *_ in self.camera][-3:]
-            irs = [round(t, 3) for t, _ in self.ir][-3:]
+            irs = [round(t, 3) for t, *_ in self.ir][-3:]
             self.get_logger().warning(
                 f'{why}: waiting for {now - self.due_wall:.1f} s: t0 {self.t0}, '
                 f'clock {self.now_s():.3f}, due from {self.due_t:.3f}, last decision on '
@@ -331,18 +345,26 @@ class ModuleNode(GraphNode):
             self.get_logger().error(f'ignored parameters: {exc}')
         self.pending = None
 
-    def _readings(self) -> tuple[float, float, np.ndarray, float] | None:
-        """An instant of this episode with both a camera and an IR reading, newer than the
-        last decision: ``(t, dest bearing, landmark bearings, d_o)``; under sim time the first
-        at or after the due instant, in real time the newest."""
-        ir = {round(t, 6): d_o for t, d_o in self.ir}
+    def _readings(self) -> tuple | None:
+        """An instant of this episode with a reading of each of the module's camera and IR
+        (those it reads), newer than the last decision: ``(t, dest bearing, landmark bearings,
+        d_o, rays)`` (NaN, None for a sensor it does not read); under sim time the first at or
+        after the due instant, in real time the newest."""
+        if 'camera' in self.sensors:
+            primary = self.camera
+            ir = ({round(t, 6): (d_o, rays) for t, d_o, rays in self.ir}
+                  if 'ir' in self.sensors else None)
+        else:
+            primary = [(t, math.nan, self._unseen, (d_o, rays)) for t, d_o, rays in self.ir]
+            ir = None
         found = None
-        for t, dest, lm in reversed(self.camera):
+        for t, dest, lm, *rest in reversed(primary):
             if t < self.t0 - _TOL or t <= self.last_t + _TOL or t < self.due_t - _TOL:
                 break
-            d_o = ir.get(round(t, 6))
-            if d_o is not None:
-                found = (t, dest, lm, d_o)
+            got = rest[0] if rest else (ir.get(round(t, 6)) if ir is not None
+                                        else (math.nan, None))
+            if got is not None:
+                found = (t, dest, lm, *got)
                 if not self.sim_time:
                     break
         return found
@@ -357,10 +379,10 @@ class ModuleNode(GraphNode):
         self.on_demand.active = True
         if found is None:
             return
-        t, dest, lm, d_o = found
-        # the place module localizes on the motion up to t: under sim time wait for the wheel
-        # reading of t too (it travels on its own topic and may come after the camera's)
-        if self.decider.localizes and self.sim_time and self.wheels_t < t - _TOL \
+        t, dest, lm, d_o, rays = found
+        # a module reading the wheels (the place module: odometry up to t) under sim time waits
+        # for the wheel reading of t too (it travels on its own topic and may come later)
+        if 'wheels' in self.sensors and self.sim_time and self.wheels_t < t - _TOL \
                 and not (self.wheels and self.wheels[-1][0] >= t - _TOL):
             return
         self.on_demand.active = False
@@ -371,8 +393,9 @@ class ModuleNode(GraphNode):
             if tw > self.wheels_t + _TOL:
                 self.decider.on_wheels(vl, vr, tw - self.wheels_t)
                 self.wheels_t = tw
+            self.last_wheels = np.array((vl, vr))
         mark(self.trace_decide, t)
-        p = self.decider.decide(Percept(t, dest, d_o, lm))
+        p = self.decider.decide(Percept(t, dest, d_o, lm, rays, self.last_wheels))
         self.due, self.last_t, self.last_grid = False, t, self.due_t
         msg = conv.proposal_msg(p, self.now_s())
         self.pub.publish(msg)
@@ -381,13 +404,13 @@ class ModuleNode(GraphNode):
         # display only: built only for a subscriber (RViz, Foxglove, a recorder), after the
         # proposal, which the arbiter waits for
         if self.pub_belief is not None and self.pub_belief.get_subscription_count():
-            loc = self.decider.module.localizer
-            self.pub_belief.publish(conv.belief_msg(
-                loc.belief_grid, loc.cell, loc.origin, t, self.cfg.frame))
+            grid, cell, origin = self.decider.module.display()
+            self.pub_belief.publish(conv.belief_msg(grid, cell, origin, t, self.cfg.frame))
 
 
-def main(args: list[str] | None = None, kind: str = 'innate') -> None:
-    run_node(lambda: ModuleNode(kind), kind, __doc__, args)
+def main(args: list[str] | None = None, kind: str | None = None) -> None:
+    """``ros2 run clis_modules module --ros-args -r __node:=NAME`` (any module instance)."""
+    run_node(lambda: ModuleNode(kind), kind or 'module', __doc__, args)
 
 
 def main_innate(args: list[str] | None = None) -> None:
@@ -405,6 +428,6 @@ def main_place(args: list[str] | None = None) -> None:
     main(args, 'place')
 
 
-if __name__ == '__main__':       # python -m clis_modules.module_node KIND [--ros-args ...]
+if __name__ == '__main__':       # python -m clis_modules.module_node NAME [--ros-args ...]
     import sys
     main(sys.argv[:1] + sys.argv[2:], sys.argv[1] if len(sys.argv) > 1 else 'innate')

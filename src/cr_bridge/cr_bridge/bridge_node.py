@@ -34,10 +34,10 @@ import time
 from cr_sim.core.arena import load_arena
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.core.robot import clamp_wheels, integrate_arc, wheels_to_twist
+from cr_sim.core.robot import clamp_wheels, integrate_arc, robot_defaults, wheels_to_twist
 from cr_sim.core.sim import IGNORED_SECTIONS, SimParams
 from cr_sim.interface import open_robot_interface
-from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
+from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -88,9 +88,11 @@ class BridgeNode(Node):
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__('bridge')
         self.now = clock        # wall seconds; a test drives the watchdog and link timers
-        # the robot's own keys (config/bridge.yaml) and the simulator's robot, sensors,
-        # episode and wander sections (config/sim.yaml): the same dotted keys as the sim node
+        # the robot's own keys (config/bridge.yaml), its body (config/robot.yaml) and the
+        # simulator's sensors, episode and wander sections (config/sim.yaml): the same dotted
+        # keys as the sim node
         defaults = ros_parameters(config_dir() / 'bridge.yaml', 'bridge')
+        defaults.update(robot_defaults())
         sim = ros_parameters(config_dir() / 'sim.yaml', 'sim')
         defaults.update({k: v for k, v in sim.items() if k not in IGNORED_SECTIONS})
         values = declare_from_config(self, defaults)     # errors name the ROS key (main)

@@ -19,7 +19,8 @@ import numpy as np
 
 from cr_sim.core import kernels
 from cr_sim.core.arena import Arena, load_arena
-from cr_sim.core.sim import Observation, SimParams, Simulator, load_sim_params
+from cr_sim.core.observation import Observation
+from cr_sim.core.sim import SimParams, Simulator, load_sim_params
 from cr_sim.gym_plugin import register_envs
 
 __all__ = ['CRNavEnv', 'CRNavVectorEnv']
@@ -75,7 +76,7 @@ class CRNavEnv(gym.Env):
     targets from the omni-camera), four coloured landmarks and a destination marker. The goal
     is to bring the robot centre within ``goal_radius`` of the destination. Physics, sensors
     and rewards are those of :class:`cr_sim.core.sim.Simulator`; layout and parameters come
-    from ``config/arena.yaml`` and ``config/sim.yaml``.
+    from ``config/arena.yaml``, ``config/robot.yaml`` and ``config/sim.yaml``.
 
     ## Action Space
 

@@ -33,15 +33,22 @@ from cr_sim import conversions as conv
 from cr_sim.core.arena import load_arena
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from cr_sim.core.robot import robot_defaults
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
-from cr_sim.executor import make_executor
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
-from cr_sim.lifecycle import SHUTDOWN_RACES, realtime_logged, reraise_unless_shut_down, settle_heap
-from cr_sim.profiling import start_profile, stop_profile
-from cr_sim.ros_params import declare_from_config, print_help_and_exit_if_asked
-from cr_sim.trace import dump as dump_trace
-from cr_sim.trace import mark
+from cr_sim.ros_support.executor import make_executor
+from cr_sim.ros_support.lifecycle import (
+    SHUTDOWN_RACES,
+    realtime_logged,
+    reraise_unless_shut_down,
+    settle_heap,
+)
+from cr_sim.ros_support.profiling import start_profile, stop_profile
+from cr_sim.ros_support.rclpy_private import supported as rp_supported
+from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
+from cr_sim.ros_support.trace import dump as dump_trace
+from cr_sim.ros_support.trace import mark
 
 START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
 #: Between the instants a lockstep holds at, callbacks (a reset, a command) are served every
@@ -80,7 +87,8 @@ class SimNodeParams:
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
     executor: str = param(choices=('lean', 'single'), doc="rclpy executor: 'lean' "
-                          "(cr_sim.executor.LeanExecutor) or 'single' (SingleThreadedExecutor)")
+                          "(cr_sim.ros_support.executor.LeanExecutor) or 'single' "
+                          '(SingleThreadedExecutor)')
     realtime_priority: int = param(0, 99, doc='SCHED_FIFO priority of the node (every thread); '
                                    '0 = default scheduling; > 0 also holds the CPU wake-up '
                                    'latency at 0 us (idle cores poll). Fail-soft without the '
@@ -102,7 +110,8 @@ class SimNode(Node):
 
     def __init__(self) -> None:
         super().__init__('sim')
-        defaults = ros_parameters(config_dir() / 'sim.yaml', 'sim')
+        # the body (config/robot.yaml) and the simulator's sections (config/sim.yaml)
+        defaults = {**robot_defaults(), **ros_parameters(config_dir() / 'sim.yaml', 'sim')}
         values = declare_from_config(self, defaults)     # errors name the ROS key (main)
         self.cfg = build(SimNodeParams, values.pop('node'), where='node')
         self.params = build(SimParams, values)
@@ -346,10 +355,10 @@ class CommandWait:
     """
 
     def __init__(self, node: SimNode) -> None:
-        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+        from cr_sim.ros_support.rclpy_private import new_wait_set
         self.node = node
         self.sub = node.sub_cmd
-        self.wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
+        self.wait_set = new_wait_set((1, 0, 0, 0, 0, 0), node.context.handle)
 
     def wait(self, timeout: float) -> bool:
         """Wait up to ``timeout`` wall seconds for commands and take them all; whether one
@@ -374,7 +383,9 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     period = node.dt / node.cfg.speed_factor if node.cfg.speed_factor > 0 else 0.0
     next_wall = time.monotonic()
     ticks = 0
-    fast = CommandWait(node) if list(executor.get_nodes()) == [node] else None
+    # (a wait set of its own: rclpy's private API, for the rclpy it was written for only)
+    fast = CommandWait(node) if list(executor.get_nodes()) == [node] and rp_supported() \
+        else None
     while rclpy.ok():
         if node.holding:                  # the clock stands still (learner gate, lockstep)
             waiting_cmd = fast is not None and node.gate.state == 'command'
@@ -412,7 +423,7 @@ def main(args: list[str] | None = None) -> None:
         print(f'sim: bad parameter: {exc}')
         rclpy.try_shutdown()
         raise SystemExit(2) from None
-    executor = make_executor(node.cfg.executor)
+    executor = make_executor(node.cfg.executor, node.get_logger())
     executor.add_node(node)
     settle_heap()
     if node.cfg.realtime_priority:

@@ -27,7 +27,7 @@ from cr_sim.core.params import (
     param,
     ros_parameters,
 )
-from cr_sim.ros_params import is_ros_key, project_keys, unknown_key
+from cr_sim.ros_support.ros_params import is_ros_key, project_keys, unknown_key
 
 from clis_learner.core.corrections import BEHAVIOUR_STATES, BEHAVIOURS, CORRECTIONS
 from clis_learner.core.resample import RESAMPLE_METHODS
@@ -207,9 +207,9 @@ def check_params_file(path: str | os.PathLike) -> dict[str, Any]:
     """Check a ROS 2 parameter file a user gives every node (``clis run --params FILE``).
 
     Every key must be one that a node of the project declares (:func:`check_overrides`
-    against :func:`cr_sim.ros_params.project_keys`), and the CLIS keys (``config/clis.yaml``)
-    must hold allowed values (:func:`load_clis_params`); the nodes check the others' values at
-    start.
+    against :func:`cr_sim.ros_support.ros_params.project_keys`), and the CLIS keys
+    (``config/clis.yaml``) must hold allowed values (:func:`load_clis_params`); the nodes check
+    the others' values at start.
 
     Returns
     -------

@@ -19,9 +19,9 @@ Selection (3): ``arbiter.selection = episode`` draws the acting module once, fro
 the start state (what (4)-(6) assume); ``decision`` redraws at every tick at which any module
 decides.
 
-Localization of the place module: the executed wheel velocities of every tick are composed into
-one displacement in the robot frame (odometry), applied at the module's next decision by the
-motion update, followed by the landmark update (paper III-D).
+Modules with a ``motion`` hook (the place module's localization): the executed wheel velocities
+of every tick are composed into one displacement in the robot frame (odometry), applied at the
+module's next decision by that hook, followed by its ``sense`` hook (paper III-D).
 
 After each learning episode the learner trains every module from it (eqs. 6-9, 11).
 """
@@ -41,7 +41,14 @@ from typing import Any
 
 from clis_modules.core.arbiter import Selector, selection_probs
 from clis_modules.core.decider import Decider, Percept
-from clis_modules.core.modules import CONDITIONS, ModuleCore, arena_map, make_modules
+from clis_modules.core.modules import (
+    CONDITIONS,
+    ModuleCore,
+    arena_map,
+    condition_periods,
+    make_modules,
+)
+from clis_modules.core.plugin import parse_condition, solo_condition
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.sim import SimParams, Simulator, load_sim_params
 from cr_sim.core.starts import draw_start
@@ -64,9 +71,9 @@ class Agent:
     ----------
     params : ClisParams
     condition : str
-        ``innate``, ``view``, ``place``, ``sync`` or ``async``.
+        ``TIMING:MODULE+MODULE...``, or ``innate``, ``view``, ``place``, ``sync``, ``async``.
     arena : Arena
-        Landmarks and obstacles for the place module's localization grid.
+        Landmarks and obstacles (the place module's localization grid).
     rng : np.random.Generator
         Draws the selections and the modules' actions.
     wheel_base : float
@@ -88,7 +95,9 @@ class Agent:
         self.buffer = StreamBuffer(self.names)
         self.memory = EpisodeMemory(self.names)
         self.rng = rng
-        self.place = next((m for m in self.modules if m.localizer is not None), None)
+        #: the module whose state the place-selection map sets at each pose (an ``at_pose``
+        #: hook: the place module), or None
+        self.place = next((m for m in self.modules if m.at_pose is not None), None)
 
     def values(self, feats: list[np.ndarray]) -> np.ndarray:
         """``V_i(x)`` of every module at the given features, shape (N,)."""
@@ -119,7 +128,7 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     sim.reset(start=start, heading=heading)
     for d in deciders:
         d.reset()
-    localizing = [d for d in deciders if d.localizes]
+    localizing = [d for d in deciders if d.tracks_motion]
     selector.begin_episode(0.0)
     u_exec = np.zeros(2)
     # the acting module's features at the other modules' instants (learner.behaviour_state)
@@ -131,7 +140,7 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
         if due:
             t = k * dt
             # the sensors the modules read (Simulator.observe's values, no Observation made)
-            percept = Percept(t, *sim.sense())
+            percept = Percept(t, *sim.sense_all())
             proposals = [d.decide(percept) for d in due]
             for p in proposals:
                 buffer.add_decision(p.module, p.t, p.b)
@@ -162,9 +171,9 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
 def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -> dict | None:
     """Pr(M_pl | x) of (3) on a grid of positions, heading to the destination (paper Fig. 4).
 
-    Innate and view read the sensors at that pose; the place module's belief is taken as
-    localized on the cell of the pose (the end-of-learning situation the figure shows).
-    Positions where the robot does not fit are NaN.
+    The modules read the sensors at that pose; the one with an ``at_pose`` hook (the place
+    module: its belief localized on the cell of the pose, the end-of-learning situation the
+    figure shows) is put there first. Positions where the robot does not fit are NaN.
 
     Returns
     -------
@@ -179,7 +188,6 @@ def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -
     xs = np.arange(x0 + resolution / 2, x1, resolution)
     ys = np.arange(y0 + resolution / 2, y1, resolution)
     dest = sim.arena.destination
-    loc = agent.place.localizer
     i_place = agent.modules.index(agent.place)
     p_all = np.full((len(ys), len(xs), len(agent.modules)), np.nan)
     for iy, y in enumerate(ys):
@@ -189,17 +197,15 @@ def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -
                 obs = sim.reset(start=(x, y, heading))
             except ValueError:
                 continue  # the robot does not fit here
-            onehot = np.zeros(loc.shape)
-            onehot[loc.cell_of(x, y, heading)] = 1.0
-            loc.set_belief(onehot)
-            feats = [m.features(obs.dest_bearing, obs.d_o, obs.landmark_bearings)
-                     for m in agent.modules]
+            agent.place.at_pose(x, y, heading)
+            percept = Percept.from_observation(obs.t, obs)
+            feats = [m.features(percept) for m in agent.modules]
             arb = agent.params.arbiter
             probs = selection_probs(agent.values(feats), agent.gammas,
                                     agent.params.common.beta, None, arb.rule, arb.scale_min,
                                     arb.explore)
             p_all[iy, ix] = probs
-    loc.reset()
+    agent.place.reset()
     return {'x': xs.tolist(), 'y': ys.tolist(), 'p': p_all[:, :, i_place].tolist(),
             'modules': {m.name: p_all[:, :, k].tolist() for k, m in enumerate(agent.modules)}}
 
@@ -249,9 +255,9 @@ class JobSpec:
         return params, sim_params, arena
 
     def validate(self) -> None:
-        if self.condition not in CONDITIONS:
-            raise ValueError(f'unknown condition {self.condition!r}')
-        _, _, arena = self.load()
+        parse_condition(self.condition)                   # raises if not a condition
+        params, _, arena = self.load()
+        condition_periods(params, self.condition)         # raises naming an unknown module
         draw_start(self.train_start, arena, np.random.default_rng(0))  # raises if unknown
 
     def result_path(self) -> Path:
@@ -466,9 +472,10 @@ def solo_evaluation(agent: Agent, params: ClisParams, arena: Arena, sim_params: 
         return {}
     out = {}
     for m in agent.modules:
-        if not m.learned or m.name not in CONDITIONS:
+        if not m.learned:
             continue
-        solo = Agent(params, m.name, arena, np.random.default_rng(0), sim_params.robot.wheel_base)
+        solo = Agent(params, solo_condition(m.name), arena, np.random.default_rng(0),
+                     sim_params.robot.wheel_base)
         solo.modules[0].w, solo.modules[0].W, solo.modules[0].sigma = m.w, m.W, m.sigma
         rows = evaluate(solo, arena, sim_params, spec.seed, spec.episodes, spec.eval_episodes)
         out[m.name] = {'reached': float(sum(r['reached'] for r in rows)), 'n': float(len(rows)),

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
-from clis_modules.core.decider import Proposal
 from clis_modules.core.modules import ModuleCore
+from clis_modules.core.proposal import Proposal
 import numpy as np
 
 from clis_learner.core.config import ClisParams

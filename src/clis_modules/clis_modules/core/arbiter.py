@@ -20,7 +20,7 @@ sampling of (4)-(6) assumes, one behaviour policy per episode; ``decision`` redr
 decision of any module, from each module's value at its latest features.
 
 :class:`Selector` is the arbitration over streams of proposals (twist_mux style): it keeps the
-latest :class:`~clis_modules.core.decider.Proposal` of every module, draws by (3) when the
+latest :class:`~clis_modules.core.proposal.Proposal` of every module, draws by (3) when the
 episode starts (once every module has proposed, or after ``start_timeout``) or at every
 decision, drops a module whose latest proposal is older than ``stale_periods`` of its periods,
 commands a stop when none is fresh, and clips the acting module's proposal to that module's
@@ -32,14 +32,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass as plain_dataclass
-from typing import TYPE_CHECKING
 
 from cr_sim.core.params import dataclass, param
 import numpy as np
 from numpy.typing import ArrayLike
 
-if TYPE_CHECKING:
-    from clis_modules.core.decider import Proposal
+from clis_modules.core.proposal import Proposal
 
 __all__ = ['ArbiterParams', 'selection_probs', 'Arbiter', 'Command', 'Selector']
 

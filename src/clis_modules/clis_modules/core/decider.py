@@ -8,91 +8,31 @@ its value ``V_i(x) = w_i^T b_i(x)`` (1)(2), by which the arbiter selects (3).
 :class:`Decider` is that step, shared by the two schedulers of the project: the headless runner
 (:mod:`clis_learner.core.runner`, a discrete-event loop at the simulator tick) and the module
 nodes (:mod:`clis_modules.module_node`, an rclpy timer of period ``tau_i``). It holds what a
-module carries between decisions: the place module's odometry since its last decision, which is
-applied by the motion update of its Markov localization before the landmark update (paper
-III-D). Everything else is in the :class:`~clis_modules.core.modules.ModuleCore`.
+module carries between decisions: for a module with a ``motion`` hook (the place module), the
+odometry since its last decision, which that hook applies (the motion update of its Markov
+localization) before the ``sense`` hook (the landmark update, paper III-D). Everything else is
+in the :class:`~clis_modules.core.modules.ModuleCore` and its plug-in
+(:mod:`clis_modules.core.plugin`).
 
-Inputs are plain values (:class:`Percept`, wheel velocities), so a simulator observation or
-decoded ROS messages drive it alike.
+Inputs are plain values (:class:`~clis_modules.core.plugin.Percept`, wheel velocities), so a
+simulator observation or decoded ROS messages drive it alike.
 """
 
 from __future__ import annotations
 
 import copy
 import math
-from typing import NamedTuple
 
 from cr_sim.core.kernels import odometry, odometry_step
 import numpy as np
 from numpy.typing import ArrayLike
 
 from clis_modules.core.modules import ModuleCore
+from clis_modules.core.plugin import Percept
 from clis_modules.core.policy import ACTION_DIM
+from clis_modules.core.proposal import Proposal
 
-__all__ = ['Percept', 'Proposal', 'Decider']
-
-
-class Percept(NamedTuple):
-    """What a module reads of the robot at one instant (immutable; a named tuple, not a frozen
-    dataclass: one is made at every decision instant, and a frozen dataclass's ``__init__``
-    costs several times more).
-
-    Attributes
-    ----------
-    t : float
-        Time of the sensor readings [s].
-    dest_bearing : float
-        Bearing of the destination relative to the heading [rad]; NaN = not seen.
-    d_o : float
-        Distance to the nearest obstacle, the smallest IR reading [m].
-    landmark_bearings : np.ndarray, shape (M,)
-        Bearings of the landmarks [rad] in the arena's order; NaN = not seen.
-    """
-
-    t: float
-    dest_bearing: float
-    d_o: float
-    landmark_bearings: np.ndarray
-
-    @classmethod
-    def from_observation(cls, t: float, obs) -> Percept:
-        """From a :class:`cr_sim.core.sim.Observation` (any object with its fields)."""
-        return cls(t, obs.dest_bearing, obs.d_o, obs.landmark_bearings)
-
-
-class Proposal(NamedTuple):
-    """A module's decision at time ``t`` (what a module node publishes; immutable, a named
-    tuple as :class:`Percept`: one per decision).
-
-    Attributes
-    ----------
-    module : str
-        The module's name.
-    t : float
-        Time of the sensor readings the decision used [s]: the decision time ``t_l``.
-    b : np.ndarray, shape (n,)
-        Features ``b_i(x(t_l))``.
-    u : np.ndarray, shape (2,)
-        Proposed ``(v_left, v_right)`` [m/s] drawn from (10), not clipped to the speed limit
-        (the learner's densities are of this action).
-    mean : np.ndarray, shape (2,)
-        Policy mean ``v_max W_i b`` [m/s].
-    sigma : float
-        Policy standard deviation at ``b`` [m/s].
-    value : float
-        ``V_i(x(t_l)) = w_i^T b`` (1)(2).
-    version : int
-        Version of the parameters the decision used (learned episodes; 0 = initial).
-    """
-
-    module: str
-    t: float
-    b: np.ndarray
-    u: np.ndarray
-    mean: np.ndarray
-    sigma: float
-    value: float
-    version: int = 0
+__all__ = ['Percept', 'Decider']
 
 
 class Decider:
@@ -121,12 +61,13 @@ class Decider:
         return self.module.name
 
     @property
-    def localizes(self) -> bool:
-        """Whether the module integrates odometry (the place module)."""
-        return self.module.localizer is not None
+    def tracks_motion(self) -> bool:
+        """Whether the module integrates odometry (a ``motion`` hook: the place module)."""
+        return self.module.on_motion is not None
 
     def reset(self) -> None:
-        """Episode start: the place module forgets its pose (uniform belief, paper III-D)."""
+        """Episode start: the module's ``reset`` hook (the place module forgets its pose,
+        paper III-D)."""
         self.module.reset()
         self._odo = (0.0, 0.0, 0.0)
         self._first = True
@@ -134,10 +75,10 @@ class Decider:
     def on_wheels(self, v_left: float, v_right: float, dt: float) -> None:
         """The robot drove the wheel velocities ``(v_left, v_right)`` [m/s] for ``dt`` [s].
 
-        The place module composes them into one displacement in the robot frame at its last
-        decision (odometry), used by the next motion update; other modules ignore them.
+        A module with a ``motion`` hook composes them into one displacement in the robot frame
+        at its last decision (odometry), for its next motion update; other modules ignore them.
         """
-        if self.module.localizer is None:
+        if self.module.on_motion is None:
             return
         # wheels_to_twist then integrate_arc, compiled (called at every simulator tick)
         self._odo = odometry_step(*self._odo, v_left, v_right, self.wheel_base, dt)
@@ -146,24 +87,23 @@ class Decider:
         """:meth:`on_wheels` for each row ``(v_left, v_right)`` of ``wheels`` (K, 2), oldest
         first, each held for ``dt`` [s] (the steps of :meth:`cr_sim.core.sim.Simulator.hold`):
         the same arithmetic, compiled as one loop."""
-        if self.module.localizer is None:
+        if self.module.on_motion is None:
             return
         self._odo = odometry(*self._odo, wheels, self.wheel_base, dt)
 
     def decide(self, percept: Percept) -> Proposal:
         """Decide at ``percept.t``: features, then ``u ~ pi_i(x, .)`` (10) and ``V_i(x)``."""
         m = self.module
-        loc = m.localizer
-        if loc is not None:
-            if not self._first:
-                # paper III-D: b(x') <- sum_x Pr(x' | x, u) b(x), u = odometry since the last
-                # decision (none before the first decision of an episode)
-                loc.predict(*self._odo)
-                self._odo = (0.0, 0.0, 0.0)
-            # paper III-D: b(x) <- eta Pr(s | x) b(x)
-            loc.update(percept.landmark_bearings)
+        if m.on_motion is not None and not self._first:
+            # the place module, paper III-D: b(x') <- sum_x Pr(x' | x, u) b(x), u = odometry
+            # since the last decision (none before the first decision of an episode)
+            m.on_motion(*self._odo)
+            self._odo = (0.0, 0.0, 0.0)
+        if m.on_sense is not None:
+            # the place module, paper III-D: b(x) <- eta Pr(s | x) b(x)
+            m.on_sense(percept)
         self._first = False
-        b = m.features(percept.dest_bearing, percept.d_o, percept.landmark_bearings)
+        b = m.feature_fn(percept)
         pol = m.policy
         # (10) mean v_max W_i b (GaussianPolicy.mean; b is a fresh float64 array already)
         mean = pol.v_max * (pol.W @ b)
@@ -177,18 +117,15 @@ class Decider:
 
     def observe(self, percept: Percept) -> np.ndarray:
         """Features ``b_i(x(t))`` at ``percept.t``, an instant at which the module does not
-        decide, without deciding: no draw, and its state is left as it is (the place module's
-        belief is the one its next motion and landmark updates would give at ``t``,
-        :meth:`MarkovLocalizer.peek`). The learner scores the module's density there when it
-        is the behaviour of another module's decision (paper (6): both densities at
-        ``x(l tau_i)``)."""
+        decide, without deciding: no draw, and its state is left as it is (a module with a
+        ``peek`` hook gives the features its next ``motion`` and ``sense`` would give at ``t``:
+        the place module's :meth:`MarkovLocalizer.peek`). The learner scores the module's
+        density there when it is the behaviour of another module's decision (paper (6): both
+        densities at ``x(l tau_i)``)."""
         m = self.module
-        loc = m.localizer
-        if loc is None:
-            return m.features(percept.dest_bearing, percept.d_o, percept.landmark_bearings)
-        # the features of the peeked belief (the RBF projection with place.features.kind rbf)
-        return m.belief_features(loc.peek(None if self._first else self._odo,
-                                          percept.landmark_bearings))
+        if m.peek_fn is None:
+            return m.feature_fn(percept)
+        return m.peek_fn(None if self._first else self._odo, percept)
 
     def warm_up(self, n_landmarks: int) -> None:
         """Run a copy of this decider through every path of an episode once, so that the
@@ -214,7 +151,8 @@ class Decider:
                                              (-0.2, np.full(n_landmarks, math.nan))]):
                 twin.on_wheels(0.1, 0.12, 0.05)
                 twin.on_wheel_steps(np.array([[0.1, 0.12], [0.08, 0.1]]), 0.05)
-                twin.decide(Percept(0.05 * k, dest, 0.4, lm))
+                twin.decide(Percept(0.05 * k, dest, 0.4, lm, np.full(7, 0.4),
+                                    np.array([0.1, 0.12])))
 
     def set_parameters(self, w: ArrayLike, W: ArrayLike, sigma: float,  # noqa: N803
                        version: int) -> None:

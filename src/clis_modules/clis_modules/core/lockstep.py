@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from clis_modules.core.decider import Proposal
+from clis_modules.core.proposal import Proposal
 
 __all__ = ['TickBarrier']
 

@@ -27,9 +27,10 @@ from dataclasses import dataclass, field
 import math
 
 from cr_sim.core.gate import EpisodeGate
+from cr_sim.core.observation import Observation
 from cr_sim.core.params import dataclass as frozen_dataclass
 from cr_sim.core.params import param
-from cr_sim.core.sim import EpisodeParams, Observation
+from cr_sim.core.sim import EpisodeParams
 from cr_sim.core.wander import WanderParams, WanderPolicy
 import numpy as np
 

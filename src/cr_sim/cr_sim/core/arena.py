@@ -25,6 +25,7 @@ import numpy as np
 
 from cr_sim.core.geometry import disc_gap
 from cr_sim.core.params import ConfigError, config_dir, load_yaml
+from cr_sim.core.robot import load_robot_params
 
 __all__ = [
     'ArenaError', 'Box', 'Destination', 'Landmark', 'Start', 'Arena', 'load_arena',
@@ -437,7 +438,7 @@ def load_arena(path: str | os.PathLike | None = None, robot_radius: float | None
         The YAML file; default ``config_dir() / 'arena.yaml'``.
     robot_radius : float, optional
         Robot radius [m] for the free-space checks; default ``robot.radius`` of the default
-        ``sim.yaml``.
+        ``robot.yaml``.
 
     Returns
     -------
@@ -451,8 +452,7 @@ def load_arena(path: str | os.PathLike | None = None, robot_radius: float | None
     """
     p = Path(path) if path is not None else config_dir() / 'arena.yaml'
     if robot_radius is None:
-        from cr_sim.core.sim import load_sim_params  # lazy: sim imports this module
-        robot_radius = load_sim_params().robot.radius
+        robot_radius = load_robot_params().radius
     try:
         data = load_yaml(p)
     except ArenaError:

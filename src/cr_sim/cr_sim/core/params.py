@@ -30,7 +30,8 @@ from typing import Any
 import yaml
 
 __all__ = [
-    'ConfigError', 'param', 'build', 'load_yaml', 'ros_parameters', 'config_dir', 'replace',
+    'ConfigError', 'param', 'build', 'build_fields', 'load_yaml', 'ros_parameters', 'config_dir',
+    'replace',
     'dataclass', 'as_dict', 'set_dotted', 'flatten', 'unflatten', 'load_params',
 ]
 
@@ -120,12 +121,24 @@ def _convert(tp: Any, value: Any, where: str, meta: Mapping[str, Any]) -> Any:
 def build(cls: type, mapping: Mapping[str, Any], where: str = '') -> Any:
     """Construct the frozen dataclass ``cls`` from ``mapping``, validating every field.
 
+    A class with a ``__build_params__(mapping, where)`` classmethod builds itself (sections
+    whose names are not fields, such as the module instances of ``clis.yaml``); it calls
+    :func:`build_fields` for its own fields.
+
     Raises
     ------
     ConfigError
         Naming ``where.key`` for a missing key, an unknown key (with the allowed keys) or a
         value outside its declared range.
     """
+    custom = getattr(cls, '__build_params__', None)
+    if custom is not None:
+        return custom(mapping, where)
+    return build_fields(cls, mapping, where)
+
+
+def build_fields(cls: type, mapping: Mapping[str, Any], where: str = '') -> Any:
+    """:func:`build` of ``cls``'s own fields (no ``__build_params__``)."""
     if not isinstance(mapping, Mapping):
         raise ConfigError(f'{where or cls.__name__} must be a mapping')
     hints = typing.get_type_hints(cls)
@@ -267,7 +280,8 @@ def unflatten(flat: Mapping[str, Any]) -> dict:
 
 def load_params(cls: type, filename: str, node: str, path: str | os.PathLike | None = None,
                 overrides: Mapping[str, Any] | None = None,
-                ignore: tuple[str, ...] = (), where: str = '') -> Any:
+                ignore: tuple[str, ...] = (), where: str = '',
+                extra: Mapping[str, Any] | None = None) -> Any:
     """Build ``cls`` from the ``node: ros__parameters:`` section of a config file.
 
     Parameters
@@ -283,6 +297,9 @@ def load_params(cls: type, filename: str, node: str, path: str | os.PathLike | N
         key must exist in the file.
     ignore : tuple of str
         Top-level sections left out (read by someone else, e.g. the ROS node's ``node``).
+    extra : Mapping, optional
+        Top-level sections that come from another file (already read), added to the file's
+        before the overrides; the file must not have them.
 
     Raises
     ------
@@ -294,6 +311,11 @@ def load_params(cls: type, filename: str, node: str, path: str | os.PathLike | N
     p = Path(path) if path is not None else config_dir() / filename
     raw = ros_parameters(p, node=node)
     data = {k: copy.deepcopy(v) for k, v in raw.items() if k not in ignore}
+    for key, value in (extra or {}).items():
+        if key in data:
+            raise ConfigError(f'{p}: section {key} is not read from this file (it is '
+                              f'described once, elsewhere)')
+        data[key] = copy.deepcopy(value)
     try:
         for key, value in flatten(overrides or {}).items():
             set_dotted(data, key, value)

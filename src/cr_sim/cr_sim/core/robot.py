@@ -3,6 +3,10 @@
 The CR is modelled as a disc of radius ``radius`` driven by two wheels ``wheel_base`` apart.
 The command is the pair of wheel (rim) velocities ``u = (v_left, v_right)`` in m/s.
 
+The body is described once, in ``config/robot.yaml`` (:func:`load_robot_params`,
+:class:`RobotParams`): the simulator, the real robot's bridge, the module and arbiter nodes and
+the headless runner all read it there.
+
 Kinematics (unicycle form of a differential drive)::
 
     v     = (v_right + v_left) / 2              forward speed of the centre      [m/s]
@@ -22,26 +26,66 @@ No rclpy or message types here: the bridge and the ROS node reuse these function
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 import math
+import os
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cr_sim.core.params import dataclass, param
+from cr_sim.core.params import config_dir, dataclass, load_params, param, ros_parameters
 
 __all__ = [
-    'RobotParams', 'wheels_to_twist', 'twist_to_wheels', 'clamp_wheel', 'clamp_wheels',
-    'integrate_arc',
+    'ROBOT_FILE', 'RobotParams', 'load_robot_params', 'robot_defaults', 'wheels_to_twist',
+    'twist_to_wheels', 'clamp_wheel', 'clamp_wheels', 'integrate_arc',
 ]
+
+#: The file in :func:`~cr_sim.core.params.config_dir` that describes the body, a ROS 2
+#: parameter file for every node (``/**: ros__parameters: robot: ...``).
+ROBOT_FILE = 'robot.yaml'
 
 
 @dataclass(frozen=True)
 class RobotParams:
-    """Body and drive of the Cyber Rodent (``sim.yaml`` section ``robot``)."""
+    """Body and drive of the Cyber Rodent (``robot.yaml`` section ``robot``)."""
 
     radius: float = param(0.01, 0.5, doc='body radius: the robot is a disc for collisions [m]')
     wheel_base: float = param(0.01, 1.0, doc='distance between the two wheels [m]')
     v_wheel_max: float = param(0.01, 1.3, doc='hard limit of each wheel velocity [m/s]')
+
+
+@dataclass(frozen=True)
+class _RobotFile:
+    """The sections of ``robot.yaml``."""
+
+    robot: RobotParams = param(doc='section robot')
+
+
+def load_robot_params(path: str | os.PathLike | None = None,
+                      overrides: Mapping[str, Any] | None = None) -> RobotParams:
+    """Read the body from ``/**: ros__parameters: robot:`` of ``robot.yaml``.
+
+    Parameters
+    ----------
+    path : path-like, optional
+        Default ``config_dir() / 'robot.yaml'``.
+    overrides : Mapping, optional
+        Values replacing the file's, nested and/or dotted (``{'robot.radius': 0.1}``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the key: missing, unknown, wrong type or out of range.
+    """
+    return load_params(_RobotFile, ROBOT_FILE, '/**', path, overrides).robot
+
+
+def robot_defaults(path: str | os.PathLike | None = None) -> dict:
+    """The ``robot`` section of ``robot.yaml`` as read (``{'robot': {...}}``): the defaults of
+    the ``robot.*`` parameters a node declares (the simulator's, the bridge's)."""
+    p = path if path is not None else config_dir() / ROBOT_FILE
+    return {'robot': ros_parameters(p, '/**')['robot']}
 
 
 def wheels_to_twist(v_left: float, v_right: float, wheel_base: float) -> tuple[float, float]:

@@ -54,18 +54,23 @@ from numpy.typing import ArrayLike
 from cr_sim.core import kernels
 from cr_sim.core.arena import Arena
 from cr_sim.core.geometry import box_planes, disc_gap, wrap_angle
+from cr_sim.core.observation import Observation
 from cr_sim.core.params import (
+    ConfigError,
+    as_dict,
+    config_dir,
     dataclass,
     load_params,
     param,
+    ros_parameters,
 )
-from cr_sim.core.robot import RobotParams, clamp_wheels
+from cr_sim.core.robot import ROBOT_FILE, RobotParams, clamp_wheels, load_robot_params
 from cr_sim.core.ufunc_loops import LOOPS
 from cr_sim.core.wander import WanderParams, WanderPolicy
 
 __all__ = [
-    'SensorParams', 'EpisodeParams', 'SimParams', 'load_sim_params', 'Observation',
-    'StepResult', 'Simulator', 'IGNORED_SECTIONS',
+    'SensorParams', 'EpisodeParams', 'SimParams', 'load_sim_params', 'StepResult', 'Simulator',
+    'IGNORED_SECTIONS',
 ]
 
 #: Sections of ``sim.ros__parameters`` read by the ROS node, not by the core.
@@ -116,79 +121,49 @@ class EpisodeParams:
 
 @dataclass(frozen=True)
 class SimParams:
-    """Everything the simulator core reads from ``sim.yaml`` (``sim: ros__parameters:``)."""
+    """Everything the simulator core reads: the body from ``robot.yaml``, the rest from
+    ``sim.yaml`` (``sim: ros__parameters:``)."""
 
-    robot: RobotParams = param(doc='section robot')
+    robot: RobotParams = param(doc='the body: robot.yaml, section robot')
     sensors: SensorParams = param(doc='section sensors')
     episode: EpisodeParams = param(doc='section episode')
     wander: WanderParams = param(doc='section wander')
 
 
 def load_sim_params(path: str | os.PathLike | None = None,
-                    overrides: Mapping[str, Any] | None = None) -> SimParams:
-    """Read ``sim: ros__parameters:`` of a ROS 2 parameter file into :class:`SimParams`.
+                    overrides: Mapping[str, Any] | None = None,
+                    robot_path: str | os.PathLike | None = None) -> SimParams:
+    """Read ``sim: ros__parameters:`` of a ROS 2 parameter file and the body of ``robot.yaml``
+    (:func:`~cr_sim.core.robot.load_robot_params`) into :class:`SimParams`.
 
     Parameters
     ----------
     path : path-like, optional
         Default ``config_dir() / 'sim.yaml'``.
     overrides : Mapping, optional
-        Values replacing the file's, as a nested mapping (``{'robot': {'radius': 0.1}}``)
-        and/or dotted keys (``{'robot.radius': 0.1}``). Every key must exist in the file.
+        Values replacing the files', as a nested mapping (``{'robot': {'radius': 0.1}}``)
+        and/or dotted keys (``{'robot.radius': 0.1}``). Every key must exist in the files.
+    robot_path : path-like, optional
+        Default ``config_dir() / 'robot.yaml'``.
 
     Raises
     ------
     ConfigError
         Naming the file and the key: missing, unknown, wrong type or out of range.
-        Sections listed in :data:`IGNORED_SECTIONS` (``node``) are left to the ROS node.
+        Sections listed in :data:`IGNORED_SECTIONS` (``node``) are left to the ROS node; a
+        ``robot`` section in the simulator's file is an error (the body is in ``robot.yaml``).
     """
-    return load_params(SimParams, 'sim.yaml', 'sim', path, overrides, IGNORED_SECTIONS, 'sim')
+    p = path if path is not None else config_dir() / 'sim.yaml'
+    if 'robot' in ros_parameters(p, 'sim'):
+        raise ConfigError(f'{p}: section robot: the body is described once, in {ROBOT_FILE} '
+                          '(cr_sim.core.robot.load_robot_params), not here')
+    robot = as_dict(load_robot_params(robot_path))
+    return load_params(SimParams, 'sim.yaml', 'sim', path, overrides, IGNORED_SECTIONS, 'sim',
+                       extra={'robot': robot})
 
 
 # ------------------------------------------------------------------------------------------
 # results
-
-@dataclass(frozen=True, slots=True)
-class Observation:
-    """What the robot senses at time ``t`` (arrays are read-only).
-
-    Attributes
-    ----------
-    t : float
-        Time since reset [s].
-    ir : np.ndarray, shape (n_ir,)
-        Distance from the body surface to the first wall/obstacle along each beam [m], in
-        ``[0, ir_range]``; ``ir_range`` when nothing is within range.
-    dest_bearing : float
-        Bearing of the destination relative to the heading [rad], in (-pi, pi], counter-
-        clockwise positive; ``nan`` when not seen.
-    landmark_bearings : np.ndarray, shape (n_landmarks,)
-        Same for each landmark, in arena-file order.
-    wheels : np.ndarray, shape (2,)
-        Executed ``(v_left, v_right)`` of the last step [m/s] (odometry); zeros after reset.
-    """
-
-    t: float
-    ir: np.ndarray
-    dest_bearing: float
-    landmark_bearings: np.ndarray
-    wheels: np.ndarray
-
-    @property
-    def d_o(self) -> float:
-        """Distance to the nearest obstacle seen by the IR: ``min(ir)`` [m]."""
-        return float(self.ir.min())
-
-    @property
-    def dest_visible(self) -> bool:
-        """Whether the destination is seen."""
-        return not math.isnan(self.dest_bearing)
-
-    @property
-    def landmarks_visible(self) -> np.ndarray:
-        """Which landmarks are seen, shape (n_landmarks,), bool."""
-        return ~np.isnan(self.landmark_bearings)
-
 
 class StepResult:
     """Outcome of one :meth:`Simulator.step`.
@@ -646,6 +621,13 @@ class Simulator:
         the same noise whichever of the two is called first)."""
         _, bearing, d_o = self._sensors()
         return float(bearing[0]), d_o, bearing[1:]
+
+    def sense_all(self) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`sense` and every sensor besides: ``(dest_bearing, d_o, landmark_bearings,
+        ir, wheels)`` (every IR ray, read-only; the executed wheel velocities of the last
+        step), the fields of a module's ``Percept`` after its time; no draw of its own."""
+        ir, bearing, d_o = self._sensors()
+        return float(bearing[0]), d_o, bearing[1:], ir, np.array((self._wl, self._wr))
 
     def observe(self) -> Observation:
         """The full sensor model at the current time (cached until the next step/reset).

@@ -18,15 +18,12 @@ runs unchanged on the simulator and on the real robot:
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cr_sim.core.observation import Observation
 from cr_sim.core.params import dataclass, param
-
-if TYPE_CHECKING:   # pragma: no cover
-    from cr_sim.core.sim import Observation
 
 __all__ = ['WanderParams', 'WanderPolicy']
 

@@ -59,20 +59,8 @@ def trace_executor_wakeups() -> None:
     the callback."""
     if not TRACING:
         return
-    import rclpy.executors as executors
-    real = executors._rclpy
-
-    class WaitSet(real.WaitSet):
-        def wait(self, timeout):
-            out = super().wait(timeout)
-            _marks.append((time.monotonic_ns(), 'wake', float('nan')))
-            return out
-
-    class Shim:
-        def __getattr__(self, name):
-            return WaitSet if name == 'WaitSet' else getattr(real, name)
-
-    executors._rclpy = Shim()
+    from cr_sim.ros_support.rclpy_private import wrap_executor_waits
+    wrap_executor_waits(lambda: _marks.append((time.monotonic_ns(), 'wake', float('nan'))))
 
 
 if TRACING:

@@ -121,8 +121,10 @@ def declare_from_config(node: Node, defaults: dict) -> dict:
     """
     from rcl_interfaces.msg import ParameterDescriptor
 
+    from cr_sim.ros_support.rclpy_private import parameter_overrides
+
     flat = flatten(defaults)
-    overrides = dict(getattr(node, '_parameter_overrides', {}) or {})
+    overrides = parameter_overrides(node)
     known = project_keys() | set(flat)
     for key in sorted(overrides):
         if key not in known and not is_ros_key(key) and not node.has_parameter(key):

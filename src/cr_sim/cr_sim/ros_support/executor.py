@@ -14,6 +14,10 @@ coroutine callbacks, ``spin_until_future_complete``, shutdown and Ctrl-C) and ch
 it gets there: one wait, then every ready entity's callback called directly, in rclpy's order
 (waitables, then per node timers, subscriptions, guard conditions, clients, services). The wait
 set object is reused while the number of entities stays the same.
+
+It relies on rclpy's internals, reached only through :mod:`cr_sim.ros_support.rclpy_private`:
+on an rclpy other than the one that module was written for, :func:`make_executor` gives
+rclpy's SingleThreadedExecutor instead (same results, slower) and logs a warning.
 """
 
 from __future__ import annotations
@@ -24,15 +28,15 @@ from typing import Any
 
 from rclpy.client import Client
 from rclpy.exceptions import InvalidHandle
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor, TimeoutObject
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.guard_condition import GuardCondition
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.service import Service
 from rclpy.subscription import Subscription
 from rclpy.task import Task
 from rclpy.timer import Timer
-from rclpy.utilities import timeout_sec_to_nsec
 from rclpy.waitable import NumberOfEntities
+
+from cr_sim.ros_support import rclpy_private as rp
 
 __all__ = ['EXECUTORS', 'LeanExecutor', 'make_executor']
 
@@ -40,7 +44,7 @@ __all__ = ['EXECUTORS', 'LeanExecutor', 'make_executor']
 EXECUTORS = ('lean', 'single', 'events')
 
 
-class LeanExecutor(SingleThreadedExecutor):
+class LeanExecutor(rp.PrivateExecutor):
     """Single-threaded executor that runs ready callbacks directly after one wait.
 
     A drop-in for :class:`~rclpy.executors.SingleThreadedExecutor` (``add_node``, ``spin``,
@@ -56,17 +60,15 @@ class LeanExecutor(SingleThreadedExecutor):
     def _run_tasks(self) -> None:
         """Run or resume the tasks in progress (``create_task``, coroutine callbacks), as
         rclpy does before each wait."""
-        with self._tasks_lock:
-            tasks = list(self._tasks)
+        tasks = self.pending_tasks()
         if not tasks:
             return
-        for task, _, _ in reversed(tasks):
+        for task in reversed(tasks):
             if not task.executing() and not task.done():
                 task()
                 if task.done() and task.exception() is not None:
                     raise task.exception()
-        with self._tasks_lock:
-            self._tasks = [t for t in self._tasks if not t[0].done() and not t[0].cancelled()]
+        self.prune_tasks()
 
     def _run(self, work: Callable[[], Any] | Coroutine | None) -> None:
         """Run an rclpy ``_take_*`` result (an ``async def`` or None) or a coroutine to
@@ -76,8 +78,7 @@ class LeanExecutor(SingleThreadedExecutor):
         task = Task(work, executor=self)
         task()
         if not task.done():
-            with self._tasks_lock:
-                self._tasks.append((task, None, None))
+            self.add_task(task)
         elif task.exception() is not None:
             raise task.exception()
 
@@ -97,10 +98,7 @@ class LeanExecutor(SingleThreadedExecutor):
         active, waitables = [], []
         for node in self.get_nodes():
             for kind in _KINDS:
-                # rclpy 7.1's Node keeps its entities in these lists (the properties of the
-                # same names iterate them); waitables only behind the property
-                entities = getattr(node, '_' + kind, None)
-                for e in (entities if entities is not None else getattr(node, kind)):
+                for e in rp.node_entities(node, kind):
                     if e.callback_group.can_execute(e):
                         active.append(e)
             waitables += [w for w in node.waitables if w.callback_group.can_execute(w)]
@@ -112,13 +110,9 @@ class LeanExecutor(SingleThreadedExecutor):
             self._plan = _Plan(key, self, self._plan)
         return self._plan
 
-    def _spin_once_impl(self, timeout_sec=None, wait_condition=lambda: False) -> None:
-        if self._is_shutdown or wait_condition():
-            return
-        if self._tasks:
+    def wait_and_dispatch(self, timeout_nsec: int) -> None:
+        if self.has_tasks():
             self._run_tasks()
-        timeout_nsec = timeout_sec_to_nsec(
-            timeout_sec.timeout if isinstance(timeout_sec, TimeoutObject) else timeout_sec)
         plan = self._plan_for(self._active())
         entered = []
         try:
@@ -136,9 +130,9 @@ class LeanExecutor(SingleThreadedExecutor):
             for w in plan.waitables:
                 w.add_to_wait_set(ws)
             ws.wait(timeout_nsec)
-            if self._is_shutdown:
+            if self.is_shut_down:
                 return
-            if not self._context.ok():
+            if not self.context.ok():
                 raise ExternalShutdownException()
             ready = set()
             for kind in plan.kinds:
@@ -154,7 +148,7 @@ class LeanExecutor(SingleThreadedExecutor):
                 self._execute(entity, run)
 
     def _waitable(self, w) -> None:
-        self._run(self._take_waitable(w))
+        self._run(self.take_waitable(w))
 
     def _execute(self, entity, work: Callable[[Any], None]) -> None:
         group = entity.callback_group
@@ -169,10 +163,10 @@ class LeanExecutor(SingleThreadedExecutor):
         self._call(gc.callback)
 
     def _client(self, client) -> None:
-        self._run(self._take_client(client))
+        self._run(self.take_client(client))
 
     def _service(self, srv) -> None:
-        self._run(self._take_service(srv))
+        self._run(self.take_service(srv))
 
     def _timer(self, tmr) -> None:
         try:
@@ -193,21 +187,33 @@ class LeanExecutor(SingleThreadedExecutor):
             return
         if msg_info is None:
             return
-        if sub._callback_type is sub.CallbackType.MessageOnly:
+        if rp.message_only(sub):
             self._call(sub.callback, msg_info[0])
         else:
             self._call(sub.callback, *msg_info)
 
 
-def make_executor(kind: str):
+def make_executor(kind: str, logger=None, context=None):
     """An executor of :data:`EXECUTORS`: ``'lean'``, :class:`LeanExecutor`; ``'single'``,
-    rclpy's SingleThreadedExecutor; ``'events'``, rclpy's EventsExecutor."""
+    rclpy's SingleThreadedExecutor; ``'events'``, rclpy's EventsExecutor.
+
+    ``'lean'`` on an rclpy other than :data:`~cr_sim.ros_support.rclpy_private.WRITTEN_FOR`
+    gives rclpy's SingleThreadedExecutor, with a warning to ``logger`` (default: the rclpy
+    logger ``executor``). ``context``: rclpy's default one if None."""
     if kind == 'events':
         from rclpy.experimental import EventsExecutor
-        return EventsExecutor()
+        return EventsExecutor(context=context)
     if kind == 'lean':
-        return LeanExecutor()
-    return SingleThreadedExecutor()
+        if rp.supported():
+            return LeanExecutor(context=context)
+        if logger is None:
+            from rclpy.logging import get_logger
+            logger = get_logger('executor')
+        logger.warning(
+            f"executor 'lean' is written for rclpy {rp.WRITTEN_FOR}, not "
+            f"{rp.rclpy_version() or 'an unknown version'}: using rclpy's "
+            'SingleThreadedExecutor (same results, slower; cr_sim.ros_support.rclpy_private)')
+    return SingleThreadedExecutor(context=context)
 
 
 #: Node entity lists in rclpy's order of execution, and the wait set's name of each kind
@@ -225,7 +231,7 @@ class _Plan:
     and runner in the order of ``key``."""
 
     def __init__(self, key: tuple, executor: LeanExecutor, last: _Plan | None) -> None:
-        guard, sigint_gc, context = executor._guard, executor._sigint_gc, executor._context
+        (guard, sigint_gc), context = executor.wake_guards(), executor.context
         self.key = key
         by_kind: dict[str, list] = {k: [] for k in _KINDS}
         self.waitables = []
@@ -246,7 +252,7 @@ class _Plan:
         self.size = (count.num_subscriptions, count.num_guard_conditions, count.num_timers,
                      count.num_clients, count.num_services, count.num_events)
         self.wait_set = (last.wait_set if last is not None and last.size == self.size
-                         else _rclpy.WaitSet(*self.size, context.handle))
+                         else rp.new_wait_set(self.size, context.handle))
         ws = self.wait_set
         self.guarded = [*(e.handle for e, _ in kinds), guard.handle, sigint_gc.handle,
                         *self.waitables, context.handle]

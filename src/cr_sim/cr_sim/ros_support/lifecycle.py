@@ -39,13 +39,13 @@ import struct
 import time
 
 import rclpy
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+from cr_sim.ros_support.rclpy_private import RCLError
 
 __all__ = ['CPU_WAKEUP_DEVICE', 'SHUTDOWN_RACES', 'RCLError', 'hold_cpu_wakeup_latency',
            'realtime', 'realtime_logged',
            'reraise_unless_shut_down', 'settle_heap']
 
-RCLError = _rclpy.RCLError
 #: What the executor may raise when the context is shut down under it.
 SHUTDOWN_RACES = (RCLError, RuntimeError)
 #: Linux's PM QoS interface for the CPU wake-up latency (microseconds, a native int32).

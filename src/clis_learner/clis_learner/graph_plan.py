@@ -1,0 +1,170 @@
+"""The node graph of a ``clis run``: which children, started how, with which parameters.
+
+:func:`plan_graph` lists the children of one run (:class:`GraphPlan`, in start order, the robot
+interface last), each a :class:`Child`: its ``ros2 run`` executable and the parameters ``clis
+run`` gives it. Nothing is started here (:mod:`clis_learner.supervise` starts them as
+processes, :mod:`clis_learner.graph_single` as nodes of one process).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+import subprocess
+from typing import Any
+
+__all__ = ['REALTIME_ABOVE', 'REALTIME_PRIORITY', 'Child', 'GraphPlan', 'plan_graph',
+           'ros_literal']
+
+#: ``clis run --realtime`` without a value: the SCHED_FIFO priority of the sensor-to-command
+#: path (low among real-time priorities: the kernel's interrupt threads run at 50)
+REALTIME_PRIORITY = 10
+#: Under ``--realtime PRIO``, each node's SCHED_FIFO priority above PRIO, in the order of the
+#: round trip's end: the modules at PRIO, the simulator (waiting for ``cmd_vel``) one above,
+#: the arbiter two above. A proposal's arrival then preempts a module's work at the same
+#: instant, and the command's arrival preempts both (measured: docs/benchmarks.md).
+REALTIME_ABOVE = {'sim': 1, 'arbiter': 2}
+
+
+@dataclass
+class Child:
+    """One node of the graph, started as its ``ros2 run`` executable.
+
+    ``restart``: ``'always'`` (stateless between episodes: modules, arbiter), ``'resume'``
+    (the learner: from its checkpoint) or ``'never'`` (the robot interface).
+    """
+
+    name: str
+    package: str
+    executable: str
+    params: dict[str, Any]
+    restart: str = 'always'
+    stop_last: bool = False           # stopped after the learner (the recorder)
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    log: Path | None = None
+    #: None: a ROS node (``--ros-args`` from ``params``); else its own command-line arguments
+    #: (the device emulator, which is not a ROS node)
+    args: list[str] | None = None
+    #: ROS remapping rules (``-r FROM:=TO``): a module instance's node name, ``__node:=NAME``
+    remaps: dict[str, str] = field(default_factory=dict)
+
+    def argv(self, params_files: list[Path]) -> list[str]:
+        """``EXE --ros-args [--params-file F]... -p KEY:=VALUE ...`` (what ``ros2 run`` runs)."""
+        from ament_index_python.packages import get_package_prefix
+        exe = Path(get_package_prefix(self.package)) / 'lib' / self.package / self.executable
+        if self.args is not None:
+            return [str(exe), *self.args]
+        args = [str(exe), '--ros-args']
+        for key, value in self.remaps.items():
+            args += ['-r', f'{key}:={value}']
+        for f in params_files:
+            args += ['--params-file', str(f)]
+        for key, value in self.params.items():
+            args += ['-p', f'{key}:={ros_literal(value)}']
+        return args
+
+
+def ros_literal(value: Any) -> str:
+    """A ``-p`` value ROS parses back to the same type (floats keep their point)."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        return value if value else "''"
+    return str(value)
+
+
+@dataclass
+class GraphPlan:
+    """The children of one run, in start order (the robot interface last)."""
+
+    children: list[Child] = field(default_factory=list)
+
+    def by_name(self, name: str) -> Child:
+        return next(c for c in self.children if c.name == name)
+
+
+def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str = '',
+               arena: str = '', robot: str = 'sim', device: str = 'emulator',
+               record: str = '', realtime: int = 0, first_episode: int = 1,
+               resume_state: str = '', learn_until: int = 0) -> GraphPlan:
+    """The nodes of ``condition``, with the parameters ``clis run`` gives each;
+    ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
+    ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
+    :func:`cr_sim.ros_support.lifecycle.realtime`); ``first_episode`` > 1: the number of
+    the simulator's first episode (a resumed run), ``resume_state``: where its robot and clock
+    stood (the checkpoint's ``sim_state``); ``learn_until`` > 0: the learner learns no
+    episode that starts once that many are learned in all (``learner_node.episodes``)."""
+    from clis_modules.core.modules import condition_periods, condition_sensors
+
+    from clis_learner.core.config import load_clis_params
+    clis = load_clis_params()
+    periods = condition_periods(clis, condition)
+    modules = [name for name, _ in periods]
+    sensors = condition_sensors(clis, condition)
+    graph = {'graph.condition': condition, 'graph.seed': seed, 'graph.arena_file': arena}
+    plan = GraphPlan()
+    if record:                                       # the bag recorder: up first, stops last
+        # (its episode subscription, which the first episode waits for, once it has matched
+        # the publishers of the modules and the arbiter: their first messages are in the bag)
+        wait_for = [f'{m}/proposal' for m in modules] + ['arbiter/action', 'cmd_vel']
+        plan.children.append(Child('recorder', 'clis_learner', 'recorder', {
+            **graph, 'recorder.path': record, 'recorder.on_exists': 'number',
+            'recorder.wait_for': ','.join(wait_for)}, stop_last=True))
+    plan.children.append(Child('learner', 'clis_learner', 'learner', {
+        **graph, 'learner_node.out_dir': str(out), 'learner_node.resume': resume,
+        **({'learner_node.episodes': learn_until} if learn_until > 0 else {})},
+        restart='resume'))
+
+    def priority(key: str, node: str) -> dict:
+        """``key``: ``node``'s SCHED_FIFO priority under ``--realtime`` (none without)."""
+        return {key: realtime + REALTIME_ABOVE.get(node, 0)} if realtime else {}
+    plan.children.append(Child('arbiter', 'clis_modules', 'arbiter', {
+        **graph, **priority('graph.realtime_priority', 'arbiter')}))
+    for name in modules:                 # any plug-in: the generic module node, named
+        plan.children.append(Child(name, 'clis_modules', 'module', {
+            **graph, **priority('graph.realtime_priority', name)},
+            remaps={'__node': name}))
+    if robot == 'bridge':
+        _plan_bridge(plan, seed, speed, arena, device)
+        return plan
+    # the first episode waits until DDS has matched the graph's subscribers of the robot
+    # interface (a message sent before is lost to them: the learner's first rewards, a
+    # module's first readings): every node follows the episodes and the clock, the modules
+    # that read the camera (their plug-ins' sensors) read it, the learner (and the recorder)
+    # the rewards, the arbiter commands
+    nodes = len(modules) + 2 + bool(record)
+    cameras = sum('camera' in sensors[m] for m in modules)
+    matched = [f'episode:{nodes}', f'/clock:{len(modules) + 2}',
+               *([f'camera:{cameras}'] if cameras else []),
+               f'reward:{1 + bool(record)}', 'cmd_vel:1']
+    plan.children.append(Child('sim', 'cr_sim', 'sim', {
+        'node.seed': seed, 'node.arena_file': arena, 'node.speed_factor': float(speed),
+        'node.start_subscribers': matched,
+        'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
+        'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
+        **({'node.first_episode': first_episode} if first_episode > 1 else {}),
+        **({'node.resume_state': resume_state} if resume_state else {}),
+        **priority('node.realtime_priority', 'sim')},
+        restart='never'))
+    return plan
+
+
+def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: str) -> None:
+    """The real robot's bridge as the robot interface (cr_bridge), and with ``device ==
+    'emulator'`` the device emulator on a free loopback UDP port, started just before it.
+    The robot's clock does not wait (no lockstep): the graph runs at the device's speed."""
+    if device == 'emulator':
+        import socket
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(('127.0.0.1', 0))
+            device = f'udp://127.0.0.1:{s.getsockname()[1]}'
+        plan.children.append(Child('emulator', 'cr_bridge', 'emulator', {}, restart='never',
+                                   args=['--link', device, '--speed', repr(float(speed)),
+                                         '--seed', str(seed), '--start', 'A',
+                                         '--arena', arena]))
+    plan.children.append(Child('bridge', 'cr_bridge', 'bridge', {
+        'node.device': device, 'node.seed': seed, 'node.arena_file': arena,
+        'node.start': 'wander', 'node.wait_for_learner': True}, restart='never'))

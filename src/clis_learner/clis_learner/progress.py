@@ -1,0 +1,109 @@
+"""What ``clis run`` follows while the graph runs: the learner's progress, in one line.
+
+:class:`Monitor` is the rclpy node of ``clis run`` itself (``clis_run``): it collects the
+learner's progress rows (``learner/progress``) and tells which nodes are up;
+:class:`ProgressView` shows the newest row as one line and says when the run is done.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+__all__ = ['Monitor', 'ProgressView']
+
+
+class Monitor:
+    """An rclpy node of ``clis run``: the learner's progress and the graph's discovery."""
+
+    def __init__(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        import rclpy
+        from rclpy.qos import DurabilityPolicy, QoSProfile
+
+        from cr_sim import conversions as rconv
+        self.rconv = rconv
+        self.node = rclpy.create_node('clis_run')
+        self.rows: list[dict[str, str]] = []
+        self.node.create_subscription(
+            DiagnosticArray, 'learner/progress', self._on_progress,
+            QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+
+    def _on_progress(self, msg) -> None:
+        t, event, values = self.rconv.event_from_msg(msg)
+        if values.get('event') == 'ready':             # the learner is up
+            return
+        values['t_end'] = values.get('t_end', str(t))
+        if self.rows and self.rows[-1].get('episode') == values.get('episode') \
+                and self.rows[-1].get('version') == values.get('version'):
+            return                                     # the latched copy of one seen
+        self.rows.append(values)
+
+    def up(self, nodes: list[str]) -> list[str]:
+        """Which of ``nodes`` are not up yet: not discovered, or without their ``episode``
+        subscription (created last but one by each graph node, after its other inputs)."""
+        seen = dict(self.node.get_node_names_and_namespaces())
+        missing = []
+        for n in nodes:
+            try:
+                topics = ([t for t, _ in self.node.get_subscriber_names_and_types_by_node(
+                    n, seen[n])] if n in seen else [])
+            except Exception:                           # noqa: BLE001 vanished meanwhile
+                topics = []
+            if not any(t.rsplit('/', 1)[-1] == 'episode' for t in topics):
+                missing.append(n)
+        return missing
+
+    def spin(self, timeout: float) -> None:
+        import rclpy
+        rclpy.spin_once(self.node, timeout_sec=timeout)
+
+
+class ProgressView:
+    """The one-line progress of a run, from the learner's progress rows."""
+
+    def __init__(self, target: int, block: int, quiet: bool, tty: bool,
+                 time_limit: float = 0.0) -> None:
+        self.target, self.block, self.quiet, self.tty = target, block, quiet, tty
+        self.time_limit = time_limit * 60.0
+        self.t_start = time.monotonic()
+        self.shown = 0
+        self.learned = 0
+
+    @property
+    def out_of_time(self) -> bool:
+        return self.time_limit > 0 and time.monotonic() - self.t_start >= self.time_limit
+
+    def update(self, rows: list[dict[str, str]]) -> bool:
+        """Show the newest row; True once ``target`` episodes are learned (or the time limit
+        is reached)."""
+        if len(rows) <= self.shown:
+            return self.out_of_time
+        self.shown = len(rows)
+        done = [r for r in rows if r.get('learned') == '1']
+        self.learned = len(done)
+        if not self.quiet:
+            line = self.line(rows[-1], done, time.monotonic() - self.t_start)
+            print(('\r\033[K' + line[:200]) if self.tty else line, end='' if self.tty else '\n',
+                  file=sys.stderr, flush=True)
+        return self.learned >= self.target or self.out_of_time
+
+    def line(self, last: dict[str, str], done: list[dict[str, str]], wall: float) -> str:
+        recent = done[-self.block:]
+        succ = sum(int(float(r.get('reached', 0))) for r in recent)
+        probs = ' '.join(f'{k[2:]}={float(v):.2f}' for k, v in last.items()
+                         if k.startswith('p_') and v not in ('nan', ''))
+        # sim time starts at 0 with the simulator
+        rtf = float(last.get('t_end', 'nan')) / wall if wall > 0 else math.nan
+        eta = wall * (self.target - self.learned) / self.learned if self.learned else math.nan
+        what = 'reached' if last.get('reached') == '1' else last.get('event', '?')
+        return (f'episode {self.learned}/{self.target} | {succ}/{len(recent)} reached in the '
+                f'last {len(recent)} | ep {last.get("episode")}: {what} '
+                f'{float(last.get("duration", "nan")):.1f} s, acted {last.get("behaviour", "-")}'
+                f'{" | P(i|x0) " + probs if probs else ""} | x{rtf:.0f} real time | '
+                f'{wall / 60:.1f} min, ETA {eta / 60:.1f} min')
+
+    def summary(self) -> str:
+        return (f'{self.learned} episodes learned in '
+                f'{(time.monotonic() - self.t_start) / 60:.1f} min')

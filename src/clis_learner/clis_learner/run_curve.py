@@ -1,0 +1,79 @@
+"""What a ``clis run`` leaves in its folder at the end: the learning curve and a summary.
+
+From ``OUT/episodes.csv`` (one row per learned episode, written by the learner): ``curve.csv``,
+``curve.png`` and ``selection.png`` (:func:`write_curve`), and a few lines on the run
+(:func:`summary`).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ['summary', 'write_curve']
+
+
+def write_curve(out: Path, block: int) -> tuple[Path, Path] | None:
+    """``OUT/curve.csv`` and ``OUT/curve.png`` from ``OUT/episodes.csv`` (learned episodes):
+    successes per block and the share of time each module acted. None without episodes."""
+    from clis_learner import figures
+    from clis_learner.core.runner import JobResult
+    path = out / 'episodes.csv'
+    if not path.is_file():
+        return None
+    with open(path, newline='') as fh:
+        rows = [_numbers(r) for r in csv.DictReader(fh)]
+    if not rows:
+        return None
+    names = [k[len('share_'):] for k in rows[0] if k.startswith('share_')]
+    block = max(1, min(block, len(rows)))
+    result = JobResult(spec={'label': str(rows[0].get('condition', 'graph'))}, modules=names,
+                       block=block, episodes=rows, evals=[], place_map=None, arena={},
+                       seconds=0.0)
+    successes = result.success_curve()
+    shares = result.selection_shares()
+    csv_path = out / 'curve.csv'
+    tmp = csv_path.with_suffix('.csv.tmp')
+    with open(tmp, 'w', newline='') as fh:
+        w = csv.writer(fh)
+        w.writerow(['episodes', f'successes_per_{block}', *[f'share_{n}' for n in names]])
+        for k, s in enumerate(successes):
+            w.writerow([(k + 1) * block, int(s), *[round(float(x), 4) for x in shares[k]]])
+    os.replace(tmp, csv_path)
+    png = out / 'curve.png'
+    figures.run_curve(result, png)
+    if len(names) > 1:
+        figures.run_selection(result, out / 'selection.png')
+    return csv_path, png
+
+
+def _numbers(row: dict[str, str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in row.items():
+        try:
+            out[k] = float(v)
+        except (TypeError, ValueError):
+            out[k] = v
+    return out
+
+
+def summary(out: Path, block: int) -> str:
+    """A few lines on the run from ``OUT/episodes.csv``: successes early and late, who acted."""
+    with open(out / 'episodes.csv', newline='') as fh:
+        rows = list(csv.DictReader(fh))
+    n = len(rows)
+    k = max(1, min(block, n // 2 or 1))
+    first = sum(int(float(r['reached'])) for r in rows[:k])
+    last = sum(int(float(r['reached'])) for r in rows[-k:])
+    names = [c[len('share_'):] for c in rows[0] if c.startswith('share_')]
+    shares = ', '.join(f'{m} {np.mean([float(r[f"share_{m}"]) for r in rows[-k:]]):.0%}'
+                       for m in names)
+    lost = sum(r.get('complete', '1') == '0' for r in rows)
+    return (f'summary: {n} episodes learned; reached {first}/{k} in the first {k}, '
+            f'{last}/{k} in the last {k}; who acted in the last {k}: {shares}'
+            + (f'; WARNING: {lost} episodes lost reward messages (see logs/learner.log)'
+               if lost else ''))
