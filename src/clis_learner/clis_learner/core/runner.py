@@ -49,7 +49,9 @@ from clis_modules.core.modules import (
     make_modules,
 )
 from clis_modules.core.plugin import parse_condition, solo_condition
+from clis_modules.core.streams import AgentStream
 from cr_sim.core.arena import Arena, load_arena
+from cr_sim.core.instants import DecisionClock
 from cr_sim.core.sim import SimParams, Simulator, load_sim_params
 from cr_sim.core.starts import draw_start
 import numpy as np
@@ -75,7 +77,8 @@ class Agent:
     arena : Arena
         Landmarks and obstacles (the place module's localization grid).
     rng : np.random.Generator
-        Draws the selections and the modules' actions.
+        The agent stream: draws the selections and the modules' actions, in the order of
+        :class:`~clis_modules.core.streams.AgentStream` (the graph's nodes replay it).
     wheel_base : float
         Of the robot [m]: wheel velocities to odometry.
     """
@@ -87,10 +90,12 @@ class Agent:
         self.modules: list[ModuleCore] = make_modules(params, condition, *arena_map(arena))
         self.names = [m.name for m in self.modules]
         self.gammas = np.array([m.gamma for m in self.modules])
-        self.deciders = [Decider(m, rng, wheel_base) for m in self.modules]
+        self.stream = AgentStream(rng, len(self.modules), params.arbiter.selection)
+        self.deciders = [Decider(m, self.stream.module(i), wheel_base)
+                         for i, m in enumerate(self.modules)]
         self.selector = Selector(self.names, self.gammas, [m.v_max for m in self.modules],
                                  [m.period for m in self.modules], params.arbiter,
-                                 params.common.beta, rng)
+                                 params.common.beta, self.stream.selector())
         self.learner = Learner(self.modules, params)
         self.buffer = StreamBuffer(self.names)
         self.memory = EpisodeMemory(self.names)
@@ -118,18 +123,19 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     deciders, names = agent.deciders, agent.names
     selector, buffer = agent.selector, agent.buffer
     dt = sim.params.episode.dt
-    every = [max(1, int(round(d.module.period / dt))) for d in deciders]
+    stream = agent.stream
+    if stream.clock is None or stream.clock.dt != dt:
+        stream.clock = DecisionClock([d.module.period for d in deciders], dt)
+    clock = stream.clock
     # the modules due at tick k are schedule[k % cycle] (cycle: the periods' common multiple)
-    cycle = math.lcm(*every)
-    schedule = [[d for d, n in zip(deciders, every) if k % n == 0] for k in range(cycle)]
-    # ticks from tick k to the next one at which a module is due (tick 0 has them all)
-    gaps = [next(j for j in range(1, cycle + 1) if schedule[(k + j) % cycle])
-            for k in range(cycle)]
+    cycle, gaps = clock.cycle, clock.gaps
+    schedule = [[deciders[i] for i in due] for due in clock.schedule]
     sim.reset(start=start, heading=heading)
     for d in deciders:
         d.reset()
     localizing = [d for d in deciders if d.tracks_motion]
     selector.begin_episode(0.0)
+    stream.begin_episode()
     u_exec = np.zeros(2)
     # the acting module's features at the other modules' instants (learner.behaviour_state)
     observe = (agent.params.learner.behaviour_state == 'resampled'
@@ -141,6 +147,7 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
             t = k * dt
             # the sensors the modules read (Simulator.observe's values, no Observation made)
             percept = Percept(t, *sim.sense_all())
+            stream.instant(k)                 # the draws of the instant (AgentStream)
             proposals = [d.decide(percept) for d in due]
             for p in proposals:
                 buffer.add_decision(p.module, p.t, p.b)
@@ -162,6 +169,7 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
             d.on_wheel_steps(wheels, dt)
         if res.done:
             break
+    stream.end_episode(k)
     memory = buffer.cut(0.0, k * dt, res.reached, agent.memory)
     diag = agent.learner.learn(memory, update=learn) if learn else {}
     return episode_row(memory, names, selector.start_probs, selector.start_values, diag,
@@ -421,15 +429,11 @@ class _SwappedRng:
         self.agent, self.rng = agent, rng
 
     def __enter__(self) -> None:
-        self.saved = ([d.rng for d in self.agent.deciders], self.agent.selector.arbiter.rng)
-        for d in self.agent.deciders:
-            d.rng = self.rng
-        self.agent.selector.arbiter.rng = self.rng
+        self.saved = self.agent.stream.rng
+        self.agent.stream.rng = self.rng
 
     def __exit__(self, *exc: Any) -> None:
-        for d, r in zip(self.agent.deciders, self.saved[0]):
-            d.rng = r
-        self.agent.selector.arbiter.rng = self.saved[1]
+        self.agent.stream.rng = self.saved
 
 
 def evaluate(agent: Agent, arena: Arena, sim_params: SimParams, seed: int, point: int,
