@@ -169,7 +169,8 @@ def feed_stream(stream: Any, messages: Iterable[Any], namespace: str = '/') -> I
                                                                           DiagnosticArray))
             index = int(values.get('episode', -1))
             if event == 'start':
-                closed = stream.start(t, index, values.get('start', ''))
+                closed = stream.start(t, index, values.get('start', ''),
+                                      float(values['dt']) if 'dt' in values else None)
                 if closed is not None:
                     yield closed
             elif event in END_EVENTS:

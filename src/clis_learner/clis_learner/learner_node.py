@@ -203,7 +203,8 @@ class LearnerNode(GraphNode):
         t, event, values = rconv.episode_from_msg(msg)
         index = int(values.get('episode', -1))
         if event == 'start':
-            closed = self.stream.start(t, index, values.get('start', ''))
+            closed = self.stream.start(t, index, values.get('start', ''),
+                                           float(values['dt']) if 'dt' in values else None)
             if closed is not None:
                 self._closed(closed)
             if self.cfg.episodes and self.version >= self.cfg.episodes:

@@ -41,8 +41,10 @@ import math
 import time
 import zlib
 
+from cr_sim.core.instants import TOL, DecisionClock
 from cr_sim.core.params import ConfigError, dataclass, param
 from cr_sim.core.robot import load_robot_params
+from cr_sim.core.sim import load_sim_params
 from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
@@ -54,13 +56,14 @@ from sensor_msgs.msg import JointState, LaserScan
 from clis_modules import conversions as conv
 from clis_modules.core.decider import Decider, Percept
 from clis_modules.core.modules import MODULE_NAMES, arena_map, condition_periods, make_module
+from clis_modules.core.streams import AgentStream, module_draws
 from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from cr_sim import conversions as rconv
 
 __all__ = ['ModuleNodeParams', 'ModuleNode', 'main', 'main_innate', 'main_view', 'main_place']
 
 #: Two stamps closer than this [s] are the same instant.
-_TOL = 1e-6
+_TOL = TOL
 #: Wall seconds a due decision may wait before the module logs why it waits.
 STALL_WARNING = 2.0
 #: QoS of the latched topics (episode events, parameters).
@@ -89,7 +92,8 @@ class ModuleNode(GraphNode):
     def __init__(self, kind: str | None = None) -> None:
         super().__init__(kind or 'module', 'module', ModuleNodeParams)
         kind = self.get_name()                  # the instance (``-r __node:=NAME``)
-        periods = dict(condition_periods(self.clis, self.graph.condition))
+        listed = condition_periods(self.clis, self.graph.condition)
+        periods = dict(listed)
         if kind not in periods:
             raise ConfigError(f'graph.condition = {self.graph.condition!r} has no {kind} '
                               f'module (it runs {", ".join(periods)})')
@@ -100,7 +104,17 @@ class ModuleNode(GraphNode):
         self.kind_index = (MODULE_NAMES.index(kind) if kind in MODULE_NAMES
                            else zlib.crc32(kind.encode()))
         self.sensors = set(module.sensors) | ({'wheels'} if module.on_motion else set())
-        self.decider = Decider(module, self._episode_rng(0), load_robot_params().wheel_base)
+        # the decisions' draws: the headless runner's agent stream (seed, 2), replayed over
+        # the condition's decision instants (cr_sim.core.streams); the tick dt comes with each
+        # start event (config/sim.yaml's until then)
+        self.index = [name for name, _ in listed].index(kind)
+        self.taus = [tau for _, tau in listed]
+        self.clock = DecisionClock(self.taus, load_sim_params().episode.dt)
+        self.stream = AgentStream(np.random.default_rng([self.graph.seed, 2]), len(listed),
+                                  self.clis.arbiter.selection, self.clock)
+        self.draws = module_draws(self.stream, self.index)
+        self.off_grid_rng = self._episode_rng(0)
+        self.decider = Decider(module, self.off_grid_rng, load_robot_params().wheel_base)
         # compiled kernels ready before the node joins the graph (Decider.warm_up: a kernel
         # compiled at the first decision would miss the lockstep's first instants)
         self.decider.warm_up(len(arena.landmarks))
@@ -196,8 +210,11 @@ class ModuleNode(GraphNode):
     def _on_episode(self, msg: DiagnosticArray) -> None:
         t, event, values = rconv.episode_from_msg(msg)
         if event == 'start':
+            self._start_stream(values)
             self._start(t, int(values.get('params_version', 0)), int(values.get('episode', 0)))
         elif event in END_EVENTS:
+            if self.t0 is not None and self.clock.tick(t, self.t0) is not None:
+                self.stream.end_episode(self.clock.tick(t, self.t0))
             self.t0, self.due, self.ended_t = None, False, t
 
     def _on_params(self, msg: JointState) -> None:
@@ -227,7 +244,18 @@ class ModuleNode(GraphNode):
 
     def _grid(self, t: float) -> float:
         """The last decision instant ``t_0 + l tau_i`` at or before ``t``."""
-        return self.t0 + math.floor((t - self.t0) / self.period + 1e-6) * self.period
+        return self.clock.last_instant(self.index, t, self.t0)
+
+    def _start_stream(self, values: dict) -> None:
+        """At a start event: the tick and the agent stream's state it announces (a simulator
+        keeping the stream: docs/design.md §6), else the stream goes on from the last end."""
+        dt = float(values.get('dt', self.clock.dt))
+        if dt != self.clock.dt:
+            self.clock = self.stream.clock = DecisionClock(self.taus, dt)
+        if 'agent_state' in values:
+            self.stream.set_state(values['agent_state'])
+        else:
+            self.stream.begin_episode()
 
     def _mark_due(self, g: float) -> None:
         """Under sim time: decide on the readings of grid instant ``g`` (the simulator
@@ -307,14 +335,13 @@ class ModuleNode(GraphNode):
     # ------------------------------------------------------------------ decisions
 
     def _episode_rng(self, episode: int) -> np.random.Generator:
-        """The decisions' randomness in ``episode``: from (seed, module, episode), so that a
-        run does not depend on whether the module happened to decide once more at the last
-        instant of the episode before (before its end event arrived)."""
+        """The draws of a decision off the decision instants (real time, no tick grid): from
+        (seed, 2, module, episode)."""
         return np.random.default_rng([self.graph.seed, 2, self.kind_index, episode])
 
     def _start(self, t0: float, version: int, episode: int = 0) -> None:
         self.decider.reset()
-        self.decider.rng = self._episode_rng(episode)
+        self.off_grid_rng = self._episode_rng(episode)
         self._apply_pending()
         self.t0 = t0
         self.expect_version = version
@@ -395,6 +422,14 @@ class ModuleNode(GraphNode):
                 self.wheels_t = tw
             self.last_wheels = np.array((vl, vr))
         mark(self.trace_decide, t)
+        # the draws of the instant: the agent stream's (the runner's), or off the grid a
+        # stream of the module's own
+        k = self.clock.tick(t, self.t0)
+        if k is not None and self.clock.is_due(self.index, k):
+            self.stream.instant(k)
+            self.decider.rng = self.draws
+        else:
+            self.decider.rng = self.off_grid_rng
         p = self.decider.decide(Percept(t, dest, d_o, lm, rays, self.last_wheels))
         self.due, self.last_t, self.last_grid = False, t, self.due_t
         msg = conv.proposal_msg(p, self.now_s())

@@ -49,7 +49,7 @@ from clis_modules.core.modules import (
     make_modules,
 )
 from clis_modules.core.plugin import parse_condition, solo_condition
-from clis_modules.core.streams import AgentStream
+from clis_modules.core.streams import AgentStream, module_draws, selection_draws
 from cr_sim.core.arena import Arena, load_arena
 from cr_sim.core.instants import DecisionClock
 from cr_sim.core.sim import SimParams, Simulator, load_sim_params
@@ -91,11 +91,11 @@ class Agent:
         self.names = [m.name for m in self.modules]
         self.gammas = np.array([m.gamma for m in self.modules])
         self.stream = AgentStream(rng, len(self.modules), params.arbiter.selection)
-        self.deciders = [Decider(m, self.stream.module(i), wheel_base)
+        self.deciders = [Decider(m, module_draws(self.stream, i), wheel_base)
                          for i, m in enumerate(self.modules)]
         self.selector = Selector(self.names, self.gammas, [m.v_max for m in self.modules],
                                  [m.period for m in self.modules], params.arbiter,
-                                 params.common.beta, self.stream.selector())
+                                 params.common.beta, selection_draws(self.stream))
         self.learner = Learner(self.modules, params)
         self.buffer = StreamBuffer(self.names)
         self.memory = EpisodeMemory(self.names)

@@ -25,6 +25,7 @@ from typing import Any
 
 from clis_modules.core.modules import ModuleCore
 from clis_modules.core.proposal import Proposal
+from cr_sim.core.instants import DecisionClock
 import numpy as np
 
 from clis_learner.core.config import ClisParams
@@ -63,14 +64,18 @@ class EpisodeStream:
         For the rows.
     version : int
         Episodes learned so far (a resumed checkpoint's).
+    dt : float
+        The simulator's tick [s] (the decision instants are counted in ticks; a start event
+        may say another: :meth:`start`).
     """
 
     def __init__(self, modules: Sequence[ModuleCore], params: ClisParams, condition: str,
-                 seed: int, version: int = 0) -> None:
+                 seed: int, version: int = 0, dt: float = 0.05) -> None:
         self.modules = list(modules)
         self.names = [m.name for m in self.modules]
         self.condition, self.seed, self.version = condition, seed, int(version)
         self.min_period = min(m.period for m in self.modules)
+        self.clock = DecisionClock([m.period for m in self.modules], dt)
         self.learner = Learner(self.modules, params)
         self.buffer = StreamBuffer(self.names)
         self.memory = EpisodeMemory(self.names)
@@ -114,9 +119,12 @@ class EpisodeStream:
         self.reward_t = max(self.reward_t, t)
         self.buffer.add_reward(t, r)
 
-    def start(self, t: float, index: int, start: str) -> Closed | None:
-        """Episode ``index`` started at ``t``; an ended episode still open is closed first."""
+    def start(self, t: float, index: int, start: str, dt: float | None = None) -> Closed | None:
+        """Episode ``index`` started at ``t`` (on ticks of ``dt``; None: as before); an ended
+        episode still open is closed first."""
         closed = self.close() if self.closing is not None else None
+        if dt is not None and dt != self.clock.dt:
+            self.clock = DecisionClock([m.period for m in self.modules], dt)
         self.episode = {'index': index, 't0': t, 'start': start, 'stale': 0}
         return closed
 
@@ -155,9 +163,9 @@ class EpisodeStream:
         missing = [] if self.reward_t >= t_end - TIME_TOL else ['the last reward']
         if self.stop_t < t_end - TIME_TOL:
             missing.append("the arbiter's stop")
-        for m in self.modules if on_grid else ():            # real time: off the grid
-            # decisions at t_0 + l tau_i
-            last = t0 + math.floor((t_end - t0 - TIME_TOL) / m.period + 1e-9) * m.period
+        for i, m in enumerate(self.modules if on_grid else ()):  # real time: off the grid
+            # decisions at t_0 + l tau_i before t_end
+            last = self.clock.last_before(i, t_end, t0)
             if self.buffer.last_decision(m.name) < last - TIME_TOL:
                 missing.append(f'the decision of {m.name} at {last:.3f} s')
         return missing

@@ -1,127 +1,32 @@
-"""The agent's random stream: one generator, in the headless runner's call order, replayed by
-every node of the graph.
+"""The agent stream's draws as the generators the modules' deciders and the arbiter call.
 
-The headless runner draws every decision and every selection of a run from ONE generator
-``default_rng([seed, 2])`` (the *agent stream*), in the order its loop makes them: at each tick
-``k`` of an episode at which modules are due (:class:`~cr_sim.core.instants.DecisionClock`),
-two standard normals for each due module's proposal, in module order
-(:meth:`~clis_modules.core.decider.Decider.decide`), then one uniform for the arbiter's
-selection (:class:`~clis_modules.core.arbiter.Arbiter`) if it draws at ``k``: at the episode's
-first instant (``k = 0``, where every module is due), and at every instant in ``decision``
-mode. The episodes follow each other on the same generator.
-
-What each call consumes of the generator depends only on the generator (not on the module's
-state, features or parameters: ``standard_normal(2)`` whatever the width ``sigma`` or
-``sigma_blind`` it is scaled by afterwards; one ``random()`` per selection, whatever the number
-of available modules, one included). So the sequence of calls is fixed by the decision
-instants and the episodes' lengths alone, and any process can make it: a module node, or the
-arbiter node, makes every call of the run in that order and keeps its own draws
-(:meth:`AgentStream.instant`), and gets, bit for bit, the numbers the runner's module (or
-arbiter) gets. The runner draws through the same object.
-
-An episode that ends at tick ``k_end`` has its instants ``k < k_end`` (the runner does not
-decide at the tick the episode ends on). A node may have decided at ``k_end`` before it heard
-of the end: :meth:`AgentStream.end_episode` rewinds to the episode's start and replays exactly
-the instants before ``k_end``.
+:class:`~cr_sim.core.streams.AgentStream` (the one implementation of the runner's call order,
+kept in ``cr_sim`` because the simulator node replays it too) makes the draws of each decision
+instant; :class:`ModuleDraws` hands a :class:`~clis_modules.core.decider.Decider` its module's
+two normals of the instant, :class:`SelectionDraws` the arbiter its uniform. The headless
+runner and the module and arbiter nodes use them alike.
 """
 
 from __future__ import annotations
 
-import json
 import math
 
-from cr_sim.core.instants import DecisionClock
+from cr_sim.core.streams import AgentStream
 import numpy as np
 
 from clis_modules.core.policy import ACTION_DIM
 
-__all__ = ['AgentStream', 'ModuleDraws', 'SelectionDraws']
+__all__ = ['AgentStream', 'ModuleDraws', 'SelectionDraws', 'module_draws', 'selection_draws']
 
 
-class AgentStream:
-    """The agent stream of a run (module docstring).
+def module_draws(stream: AgentStream, i: int) -> ModuleDraws:
+    """Module ``i``'s draws, as the generator its Decider calls."""
+    return ModuleDraws(stream, i)
 
-    Parameters
-    ----------
-    rng : np.random.Generator
-        The agent generator (``default_rng([seed, 2])``).
-    n : int
-        Number of modules.
-    selection : str
-        ``arbiter.selection``: ``episode`` (one draw at ``k = 0``) or ``decision`` (one at
-        every instant).
-    clock : DecisionClock, optional
-        The condition's decision instants (set :attr:`clock` before the first episode).
-    fallback : np.random.Generator, optional
-        A selection off the runner's instants (a node's arbiter after a timeout or a stale
-        module: the graph is no longer the runner's then) draws from it; None: that is an
-        error.
-    """
 
-    def __init__(self, rng: np.random.Generator, n: int, selection: str,
-                 clock: DecisionClock | None = None,
-                 fallback: np.random.Generator | None = None) -> None:
-        self.rng = rng
-        self.clock = clock
-        self.selection = selection
-        self.fallback = fallback
-        self.normals = [np.zeros(ACTION_DIM) for _ in range(n)]
-        self.uniform = math.nan
-        self.pos = 0                           # the next tick to draw for
-        self.start_state = rng.bit_generator.state
-
-    def begin_episode(self) -> None:
-        """An episode starts: its tick 0 is next."""
-        self.pos = 0
-        self.start_state = self.rng.bit_generator.state
-
-    def _draw(self, k: int) -> None:
-        due = self.clock.due_at(k)
-        if not due:
-            return
-        rng = self.rng
-        for i in due:
-            self.normals[i] = rng.standard_normal(ACTION_DIM)
-        if k == 0 or self.selection == 'decision':
-            self.uniform = rng.random()
-
-    def instant(self, k: int) -> None:
-        """Make the draws of every instant up to tick ``k`` (those before it are passed over,
-        those of ``k`` are kept: :attr:`normals` of the due modules, :attr:`uniform`). A tick
-        already drawn for keeps its draws."""
-        if k < self.pos:
-            return
-        for j in range(self.pos, k + 1):
-            self._draw(j)
-        self.pos = k + 1
-
-    def end_episode(self, k_end: int) -> None:
-        """The episode ended at tick ``k_end``: the generator stands after the draws of its
-        instants ``k < k_end``, and no others."""
-        if self.pos > k_end:                   # drew at or past the end: replay from its start
-            self.rng.bit_generator.state = self.start_state
-            self.pos = 0
-        for j in range(self.pos, k_end):
-            self._draw(j)
-        self.pos = 0
-        self.start_state = self.rng.bit_generator.state
-
-    def state(self) -> str:
-        """The generator's state between episodes, as text (:meth:`set_state`)."""
-        return json.dumps(self.start_state, sort_keys=True)
-
-    def set_state(self, text: str) -> None:
-        """Continue from :meth:`state` (a resumed run)."""
-        self.rng.bit_generator.state = json.loads(text)
-        self.begin_episode()
-
-    def module(self, i: int) -> ModuleDraws:
-        """Module ``i``'s draws, as the generator its Decider calls."""
-        return ModuleDraws(self, i)
-
-    def selector(self) -> SelectionDraws:
-        """The arbiter's draws, as the generator its Arbiter calls."""
-        return SelectionDraws(self)
+def selection_draws(stream: AgentStream) -> SelectionDraws:
+    """The arbiter's draws, as the generator its Arbiter calls."""
+    return SelectionDraws(stream)
 
 
 class ModuleDraws:
@@ -149,6 +54,6 @@ class SelectionDraws:
             if self.stream.fallback is not None:
                 return float(self.stream.fallback.random())
             raise RuntimeError('a selection where the agent stream has none (the arbiter '
-                               'drew off the runner\'s instants)')
+                               "drew off the runner's instants)")
         self.stream.uniform = math.nan
         return u
