@@ -418,7 +418,13 @@ class ModuleNode(GraphNode):
         while self.wheels and self.wheels[0][0] <= t + _TOL:
             tw, vl, vr = self.wheels.popleft()
             if tw > self.wheels_t + _TOL:
-                self.decider.on_wheels(vl, vr, tw - self.wheels_t)
+                # held for a whole number of ticks under sim time: that many dt exactly, as
+                # the headless runner integrates (the stamps' difference is dt to rounding)
+                held = tw - self.wheels_t
+                ticks = round(held / self.clock.dt)
+                if self.sim_time and ticks >= 1 and abs(held - ticks * self.clock.dt) <= _TOL:
+                    held = ticks * self.clock.dt
+                self.decider.on_wheels(vl, vr, held)
                 self.wheels_t = tw
             self.last_wheels = np.array((vl, vr))
         mark(self.trace_decide, t)

@@ -314,6 +314,13 @@ class JobResult:
     eval_curve: list[dict] = field(default_factory=list)
     solo: dict = field(default_factory=dict)
 
+    def table_episodes(self) -> list[dict]:
+        """The learning episodes as ``episodes.csv`` shows them: numbered from 1, the n-th
+        learning episode n, as ``clis run``'s ``episodes.csv``, the bags' episode events and
+        the checkpoints count them (docs/design.md §6). :attr:`episodes` keeps the index from
+        0 that the saved runs (and the golden digest of test_coop) have always had."""
+        return [{**row, 'episode': int(row['episode']) + 1} for row in self.episodes]
+
     def eval_success_curve(self) -> list[float]:
         """Successes out of ``n`` evaluation episodes (A-E, learning off) at each evaluation
         point (after 0, ``eval_every``, ... learning episodes); empty without periodic
