@@ -57,7 +57,7 @@ def train_rows(path: Path) -> dict[int, dict[str, str]]:
 @pytest.mark.parametrize('condition', CONDITIONS)
 def test_run_and_experiment_learn_the_same_episodes(tmp_path, condition):
     params = tmp_path / 'params.yaml'
-    params.write_text('/**:\n  ros__parameters:\n    episode: {time_limit: %r}\n' % TIME_LIMIT)
+    params.write_text(f'/**:\n  ros__parameters:\n    episode: {{time_limit: {TIME_LIMIT!r}}}\n')
     clis('run', '--condition', condition, '--seed', str(SEED), '--episodes', str(EPISODES),
          '--params', str(params), '--out', str(tmp_path / 'run'), '--quiet', '--speed', '0')
     clis('experiment', '--conditions', condition, '--seeds', '1', '--first-seed', str(SEED),

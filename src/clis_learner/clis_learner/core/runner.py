@@ -5,8 +5,10 @@ It is one of the two schedulers of the same cores (the other is the ROS node gra
 decides through its :class:`~clis_modules.core.decider.Decider`, the arbiter selects through the
 :class:`~clis_modules.core.arbiter.Selector`, and the learner's
 :class:`~clis_learner.core.memory.StreamBuffer` turns the timestamped records into the episode
-that :class:`~clis_learner.core.learner.Learner` learns from. Only where the inputs come from
-and when differs: here every record is made by this loop, in the nodes it arrives as a message.
+that :class:`~clis_learner.core.learner.Learner` learns from, assembled by the same
+:class:`~clis_learner.core.stream.EpisodeStream` as the learner node's and ``clis learn``'s.
+Only where the inputs come from and when differs: here every record is made by this loop and
+fed to it directly, in the nodes it arrives as a message.
 
 Time (docs/design.md §6): the simulator advances in ticks of ``episode.dt`` (50 ms). Module ``i``
 decides at every tick ``k`` with ``k mod n_i = 0``, ``n_i = tau_i / dt`` (5, 10, 24 ticks for
@@ -58,9 +60,7 @@ import numpy as np
 
 from clis_learner.core.checkpoint import save_checkpoint
 from clis_learner.core.config import ClisParams, load_clis_params, params_hash
-from clis_learner.core.episodes import episode_row
-from clis_learner.core.learner import Learner
-from clis_learner.core.memory import EpisodeMemory, StreamBuffer
+from clis_learner.core.stream import EpisodeStream
 
 __all__ = ['CONDITIONS', 'Agent', 'run_episode', 'place_selection_map', 'JobSpec', 'JobResult',
            'run_job', 'warm_up']
@@ -96,9 +96,9 @@ class Agent:
         self.selector = Selector(self.names, self.gammas, [m.v_max for m in self.modules],
                                  [m.period for m in self.modules], params.arbiter,
                                  params.common.beta, selection_draws(self.stream))
-        self.learner = Learner(self.modules, params)
-        self.buffer = StreamBuffer(self.names)
-        self.memory = EpisodeMemory(self.names)
+        #: the episode assembly (the learner node's): records in, rows and learning out
+        self.episodes = EpisodeStream(self.modules, params, condition, 0, whole=True)
+        self.learner = self.episodes.learner
         self.rng = rng
         #: the module whose state the place-selection map sets at each pose (an ``at_pose``
         #: hook: the place module), or None
@@ -121,7 +121,7 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
         diagnostics (``{key}_{module}``).
     """
     deciders, names = agent.deciders, agent.names
-    selector, buffer = agent.selector, agent.buffer
+    selector, episodes = agent.selector, agent.episodes
     dt = sim.params.episode.dt
     stream = agent.stream
     if stream.clock is None or stream.clock.dt != dt:
@@ -136,6 +136,7 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     localizing = [d for d in deciders if d.tracks_motion]
     selector.begin_episode(0.0)
     stream.begin_episode()
+    episodes.start(0.0, 0, start if isinstance(start, str) else 'pose', dt)
     u_exec = np.zeros(2)
     # the acting module's features at the other modules' instants (learner.behaviour_state)
     observe = (agent.params.learner.behaviour_state == 'resampled'
@@ -150,30 +151,31 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
             stream.instant(k)                 # the draws of the instant (AgentStream)
             proposals = [d.decide(percept) for d in due]
             for p in proposals:
-                buffer.add_decision(p.module, p.t, p.b)
+                episodes.proposal(p)
             cmd = selector.on_proposals(proposals, t)
             if cmd is not None:
                 u_exec = cmd.u_exec
+                if cmd.drawn:
+                    episodes.selection(t, dict(zip(names, selector.probs)),
+                                       dict(zip(names, selector.values)))
                 if cmd.module >= 0:
-                    buffer.add_action(cmd.t, cmd.u, names[cmd.module])
+                    episodes.action(cmd.t, cmd.u, names[cmd.module])
             acting = deciders[selector.acting] if observe and selector.acting >= 0 else None
             if acting is not None and acting not in due:
                 # (6): the behaviour's state at this decision instant of another module
-                buffer.add_observation(acting.name, t, acting.observe(percept))
+                episodes.observation(acting.name, t, acting.observe(percept))
         # the command held until the next decision, or up to a reward or the episode's end
         res, wheels = sim.hold(u_exec, gaps[k % cycle])
         k += res.steps
         if res.reward != 0.0:
-            buffer.add_reward(k * dt, res.reward)      # stamped at the end of the tick
+            episodes.reward(k * dt, res.reward)        # stamped at the end of the tick
         for d in localizing:
             d.on_wheel_steps(wheels, dt)
         if res.done:
             break
     stream.end_episode(k)
-    memory = buffer.cut(0.0, k * dt, res.reached, agent.memory)
-    diag = agent.learner.learn(memory, update=learn) if learn else {}
-    return episode_row(memory, names, selector.start_probs, selector.start_values, diag,
-                       start if isinstance(start, str) else 'pose')
+    episodes.end(k * dt, 0, 'reached' if res.reached else 'timeout')
+    return episodes.close(learn=learn).core
 
 
 def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -> dict | None:

@@ -13,6 +13,11 @@ the bag. Either way the same records give the same parameters.
 An episode is learned only if the stream holds it from its start: its first reward arrived
 within the shortest decision period after the start (the learner came up late, or was
 restarted, otherwise).
+
+It is the one episode assembly of the project: the headless runner feeds it too, directly
+(``whole=True``: every record of every episode, rewards only where they are not 0), and takes
+the same row (:attr:`Closed.core`) from it; the learner node feeds it from its topics and
+``clis learn`` from a bag, both through :func:`clis_learner.stream_topics.feed`.
 """
 
 from __future__ import annotations
@@ -48,6 +53,8 @@ class Closed:
     t_end: float
     episode: int
     sim_return: float = math.nan
+    #: the row of :func:`~clis_learner.core.episodes.episode_row` alone (the runner's)
+    core: dict[str, Any] | None = None
 
 
 class EpisodeStream:
@@ -67,10 +74,14 @@ class EpisodeStream:
     dt : float
         The simulator's tick [s] (the decision instants are counted in ticks; a start event
         may say another: :meth:`start`).
+    whole : bool
+        Every record of every episode is fed (the headless runner): every episode is held from
+        its start, whatever its first reward.
     """
 
     def __init__(self, modules: Sequence[ModuleCore], params: ClisParams, condition: str,
-                 seed: int, version: int = 0, dt: float = 0.05) -> None:
+                 seed: int, version: int = 0, dt: float = 0.05, whole: bool = False) -> None:
+        self.whole = whole
         self.modules = list(modules)
         self.names = [m.name for m in self.modules]
         self.condition, self.seed, self.version = condition, seed, int(version)
@@ -112,6 +123,11 @@ class EpisodeStream:
         """A draw of the arbiter (kept by stamp: it may come before the episode's start)."""
         self.draws.append((t, [probs.get(n, math.nan) for n in self.names],
                            [values.get(n, math.nan) for n in self.names]))
+
+    def observation(self, module: str, t: float, b: np.ndarray) -> None:
+        """Module ``module``'s features at ``t``, an instant at which it did not decide
+        (:meth:`~clis_learner.core.memory.StreamBuffer.add_observation`)."""
+        self.buffer.add_observation(module, t, b)
 
     def reward(self, t: float, r: float) -> None:
         """The reward of the step that ended at ``t``."""
@@ -172,9 +188,9 @@ class EpisodeStream:
 
     # ------------------------------------------------------------------ learning
 
-    def close(self) -> Closed:
+    def close(self, learn: bool = True) -> Closed:
         """Cut the ended episode out of the buffer and learn from it (if seen from its
-        start)."""
+        start, and ``learn``: the runner's evaluation episodes are not learned)."""
         ep, c = self.episode, self.closing
         if ep is None or c is None:
             raise RuntimeError('no ended episode to close')
@@ -185,7 +201,8 @@ class EpisodeStream:
         ret = float(mem.rewards()[1].sum())
         complete = not abs(ret - c['return']) > 1e-6           # NaN: the sim did not say
         # learn only from episodes recorded from their start
-        learnable = self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
+        learnable = self.whole or self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
+        learnable = learnable and learn
         held = self.learner.held_steps
         diag = self.learner.learn(mem) if learnable else {}
         if learnable:
@@ -194,13 +211,13 @@ class EpisodeStream:
         # the module nodes publish no observations between their decisions (yet), so with
         # learner.behaviour_state = resampled the graph's Async episodes fall back to 'held'
         held = self.learner.held_steps - held
+        core = episode_row(mem, self.names, probs, values, diag, ep['start'])
         row = {'label': self.condition, 'condition': self.condition, 'seed': self.seed,
-               'phase': 'train', 'episode': ep['index'],
-               **episode_row(mem, self.names, probs, values, diag, ep['start']),
+               'phase': 'train', 'episode': ep['index'], **core,
                'event': c['event'], 'learned': int(learnable), 'version': self.version,
                'stale_decisions': ep['stale'], 'complete': int(complete), 't_end': c['t_end'],
                'held_steps': held}
-        return Closed(row, learnable, c['t_end'], ep['index'], c['return'])
+        return Closed(row, learnable, c['t_end'], ep['index'], c['return'], core)
 
     def _first_draw(self, t0: float, t_end: float) -> tuple[list | None, list | None]:
         """``Pr(i | x)`` and values of the episode's first draw (None if none arrived)."""
