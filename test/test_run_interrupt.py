@@ -11,9 +11,9 @@ with the same run uninterrupted (the graph as ``clis run`` starts it, one proces
 
 That holds because the simulator's robot, clock and random streams (its own, the starts' and
 the agent stream the modules and the arbiter replay, announced at each start) go on from where
-the checkpoint's episode left them (its ``sim_state``), the learner learns exactly ``--episodes`` episodes, and a checkpoint's bytes are
-its content (fixed zip entry times); the graph in lockstep computes the same episodes on any
-load.
+the checkpoint's episode left them (its ``sim_state``), the learner learns exactly
+``--episodes`` episodes, and a checkpoint's bytes are its content (fixed zip entry times); the
+graph in lockstep computes the same episodes on any load.
 
 A process's start costs seconds of CPU (numba, rclpy): the interrupted runs are ``clis run
 --single-process`` called in this process (``clis``'s main, stopped by a SIGINT to this
