@@ -27,6 +27,12 @@ the new episode, and restarts its timer, so that its decisions fall at ``t_0 + l
 the headless runner; after ``reached``/``timeout``/``reset`` it stays silent until the next
 start.
 
+Randomness: the headless runner's agent stream ``(seed, 2)``, replayed over the condition's
+decision instants (:mod:`cr_sim.core.streams`: the node makes every module's and the
+arbiter's draws in the runner's order and keeps its own), from the state the simulator
+announces at each start; a decision off the tick grid (real time) draws from a stream of its
+own.
+
 Parameters from the learner (``~/params``, transient local: a restarted module gets the latest
 at once) change only between episodes, as in the headless runner: they are applied before the
 first decision of an episode. A ``start`` event that announces a parameter version
@@ -213,8 +219,8 @@ class ModuleNode(GraphNode):
             self._start_stream(values)
             self._start(t, int(values.get('params_version', 0)), int(values.get('episode', 0)))
         elif event in END_EVENTS:
-            if self.t0 is not None and self.clock.tick(t, self.t0) is not None:
-                self.stream.end_episode(self.clock.tick(t, self.t0))
+            if self.t0 is not None and (k_end := self.clock.tick(t, self.t0)) is not None:
+                self.stream.end_episode(k_end)      # the draws of its instants before t
             self.t0, self.due, self.ended_t = None, False, t
 
     def _on_params(self, msg: JointState) -> None:
