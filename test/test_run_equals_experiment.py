@@ -10,7 +10,7 @@ ticks in both (:mod:`cr_sim.core.instants`); episodes are numbered from 1 in bot
 
 What matches exactly: who started where, the outcome, the duration, the collisions, the return,
 who acted and for how long (``share_*``, to 1e-9). What matches only to a tolerance:
-``Pr(i | x_0)`` and ``V_i(x_0)`` (and every learner diagnostic), for two reasons:
+``Pr(i | x_0)`` and ``V_i(x_0)`` (and every learner diagnostic):
 
 - The graph's IR travels as sensor_msgs/LaserScan, whose ranges are float32; the runner reads
   the float64 of the sensor model. The features that read the IR (the view module's distance
@@ -19,13 +19,9 @@ who acted and for how long (``share_*``, to 1e-9). What matches only to a tolera
   relative after five episodes here). Taking the runner's percept through float32 would make
   them equal, and change the headless runner's results (its golden digest, test_coop), so it is
   not done.
-- With several modules and ``learner.behaviour_state: resampled`` (the default), the runner
-  scores the behaviour's density at the behaviour's own features at the target's instant (its
-  observation); the module nodes publish no observations, so the graph's learner scores it at
-  the behaviour's latest decision there (the ``held_steps`` column counts those steps), and
-  learns slightly different parameters (about 1% in the values after a few episodes). So the
-  values are compared up to the first episode after one with held steps; the exact columns
-  over all five.
+- Nothing else: with several modules the graph's learner scores the behaviour's density at the
+  behaviour's observation at the target's instant, as the runner does (the module nodes
+  publish their features at the other modules' instants: ``held_steps`` is 0).
 """
 
 from __future__ import annotations
@@ -77,22 +73,16 @@ def test_run_and_experiment_learn_the_same_episodes(tmp_path, condition):
     runner = train_rows(tmp_path / 'exp' / 'episodes.csv')
     assert sorted(graph) == sorted(runner) == list(range(1, EPISODES + 1))
     modules = [k[len('share_'):] for k in runner[1] if k.startswith('share_')]
-    held = 0                                # the graph's held steps in the episodes before
-    compared = 0
     for n in range(1, EPISODES + 1):
         g, r = graph[n], runner[n]
         assert g['learned'] == '1' and g['complete'] == '1', g
+        assert g['held_steps'] == '0', g             # every observation arrived
         for key in EXACT:
             assert g[key] == r[key], (condition, n, key, g[key], r[key])
         for m in modules:
             assert math.isclose(float(g[f'share_{m}']), float(r[f'share_{m}']),
                                 abs_tol=1e-9), (condition, n, m)
-            if held:
-                continue                    # learned from other behaviour states since
             assert math.isclose(float(g[f'p_{m}']), float(r[f'p_{m}']),
                                 abs_tol=P_ATOL), (condition, n, 'p', m)
             assert math.isclose(float(g[f'v_{m}']), float(r[f'v_{m}']), rel_tol=V_RTOL,
                                 abs_tol=1e-9), (condition, n, 'v', m, g[f'v_{m}'], r[f'v_{m}'])
-        compared += not held
-        held += int(g['held_steps'])
-    assert compared >= (EPISODES if condition == 'view' else 1)

@@ -124,7 +124,8 @@ class LearnerNode(GraphNode):
                                             callback_group=on_demand)
         # the record streams and their routing into the episode stream (stream_topics, as
         # clis learn reads a bag)
-        callbacks = {'proposal': self._on_proposal, 'action': self._on_action,
+        callbacks = {'proposal': self._on_proposal, 'observation': self._on_observation,
+                     'action': self._on_action,
                      'selection': self._on_selection, 'reward': self._on_reward}
         self.streams = [stream(msg_type, topic, callbacks[kind])
                         for kind, topic, msg_type in record_topics(self.names)]
@@ -180,6 +181,13 @@ class LearnerNode(GraphNode):
             feed_record(self.stream, 'proposal', msg)
         except (ValueError, KeyError) as exc:
             self.get_logger().error(f'ignored proposal: {exc}')
+
+    def _on_observation(self, msg: JointState) -> None:
+        self.record_wall = time.monotonic()
+        try:
+            feed_record(self.stream, 'observation', msg)
+        except (ValueError, KeyError) as exc:
+            self.get_logger().error(f'ignored observation: {exc}')
 
     def _on_action(self, msg: JointState) -> None:
         self.record_wall = time.monotonic()

@@ -2,10 +2,11 @@
 routing of the live learner node (:mod:`clis_learner.learner_node`) and of ``clis learn``
 reading a bag (:func:`clis_learner.bags.feed_stream`).
 
-Each module's ``NAME/proposal``, the arbiter's ``arbiter/action`` and ``arbiter/selection``,
-the robot's ``reward`` (:data:`RECORDS`, :func:`feed_record`) and the ``episode`` events
-(:func:`feed_episode`), decoded by the conversions of the nodes that publish them. The
-headless runner makes the same records itself and feeds the stream directly.
+Each module's ``NAME/proposal`` and ``NAME/observation``, the arbiter's ``arbiter/action``
+and ``arbiter/selection``, the robot's ``reward`` (:data:`RECORDS`, :func:`feed_record`) and
+the ``episode`` events (:func:`feed_episode`), decoded by the conversions of the nodes that
+publish them. The headless runner makes the same records itself and feeds the stream
+directly.
 """
 
 from __future__ import annotations
@@ -27,8 +28,10 @@ from cr_sim import conversions as rconv
 __all__ = ['EPISODE', 'RECORDS', 'EpisodeEvent', 'feed_episode', 'feed_record',
            'record_topics']
 
-#: The record streams: ``(kind, topic, message type)``; ``{name}``: each module's.
+#: The record streams: ``(kind, topic, message type)``; ``{name}``: each module's (its
+#: observations only with more than one module: the behaviour's state of another's instant).
 RECORDS = (('proposal', '{name}/proposal', JointState),
+           ('observation', '{name}/observation', JointState),
            ('action', 'arbiter/action', JointState),
            ('selection', 'arbiter/selection', JointState),
            ('reward', 'reward', Vector3Stamped))
@@ -44,6 +47,8 @@ def record_topics(names: Sequence[str], namespace: str = '') -> list[tuple[str, 
         ns = '/' + namespace.strip('/') + '/' if namespace.strip('/') else '/'
     out = []
     for kind, topic, msg_type in RECORDS:
+        if kind == 'observation' and len(names) < 2:
+            continue
         for name in (names if '{name}' in topic else [None]):
             out.append((kind, ns + topic.format(name=name), msg_type))
     return out
@@ -54,6 +59,11 @@ def feed_record(stream: EpisodeStream, kind: str, msg: Any) -> None:
     proposal) or KeyError (a module not of the condition): the caller says or ignores it."""
     if kind == 'proposal':
         stream.proposal(mconv.proposal_from_msg(msg))
+    elif kind == 'observation':
+        name, t, b = mconv.observation_from_msg(msg)
+        if name not in stream.names:
+            raise KeyError(name)
+        stream.observation(name, t, b)
     elif kind == 'action':
         stream.action(*mconv.action_from_msg(msg))
     elif kind == 'selection':

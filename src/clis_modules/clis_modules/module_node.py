@@ -149,6 +149,11 @@ class ModuleNode(GraphNode):
             f'{kind}_clock', f'{kind}_decide', f'{kind}_pub')
 
         self.pub = self.create_publisher(JointState, '~/proposal', self.graph.proposal_qos())
+        # the module's features at the other modules' instants (the behaviour's state of (6)
+        # for the learner, as the headless runner records it): with more than one module
+        self.pub_obs = (self.create_publisher(JointState, '~/observation', rconv.STREAM_DEPTH)
+                        if len(listed) > 1 else None)
+        self.obs_k = 0                          # the next tick of the episode to observe at
         self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
                            if module.display is not None else None)
         # the readings of the plug-in's sensors, taken at the decision instants (docstring)
@@ -288,10 +293,13 @@ class ModuleNode(GraphNode):
             # anyway (no wakeup of their own), so that a decision takes only its instant's
             # instead of a period's worth (72 messages for the place module) on its path
             self._take_readings()
+            self._observe_pending(t)
 
     def _on_wall(self) -> None:
         now = time.monotonic()
         self._take_readings()                   # the queues stay short between decisions
+        if not self.due and self.t0 is not None:
+            self._observe_pending(self.now_s())
         if self.due:
             # a due decision waits for readings, and the executor runs the timers of a wakeup
             # before its subscriptions: a reading this took is one whose callback will not
@@ -353,6 +361,7 @@ class ModuleNode(GraphNode):
         self.expect_version = version
         self.wait_until = time.monotonic() + self.cfg.params_timeout
         self.wheels_t = t0
+        self.obs_k = 0
         self.timer.reset()
         self.marked = -math.inf
         if not self.sim_time:
@@ -402,6 +411,67 @@ class ModuleNode(GraphNode):
                     break
         return found
 
+    def _integrate_wheels(self, t: float) -> None:
+        """Odometry: the wheel velocities of every step that ended after the last reading
+        used, up to ``t`` (each held since the previous reading)."""
+        while self.wheels and self.wheels[0][0] <= t + _TOL:
+            tw, vl, vr = self.wheels.popleft()
+            if tw > self.wheels_t + _TOL:
+                # held for a whole number of ticks under sim time: that many dt exactly, as
+                # the headless runner integrates (the stamps' difference is dt to rounding)
+                held = tw - self.wheels_t
+                ticks = round(held / self.clock.dt)
+                if self.sim_time and ticks >= 1 and abs(held - ticks * self.clock.dt) <= _TOL:
+                    held = ticks * self.clock.dt
+                self.decider.on_wheels(vl, vr, held)
+                self.wheels_t = tw
+            self.last_wheels = np.array((vl, vr))
+
+    def _reading_at(self, t: float) -> tuple | None:
+        """The readings of instant ``t`` the module reads: ``(dest bearing, landmark
+        bearings, d_o, rays)``, or None while one has not arrived."""
+        cam = None
+        if 'camera' in self.sensors:
+            cam = next(((dest, lm) for tc, dest, lm in reversed(self.camera)
+                        if abs(tc - t) <= _TOL), None)
+            if cam is None:
+                return None
+        ir = (math.nan, None)
+        if 'ir' in self.sensors or 'camera' not in self.sensors:
+            ir = next(((d_o, rays) for ti, d_o, rays in reversed(self.ir)
+                       if abs(ti - t) <= _TOL), None)
+            if ir is None:
+                return None
+        dest, lm = cam if cam is not None else (math.nan, self._unseen)
+        return dest, lm, *ir
+
+    def _observe_pending(self, limit: float) -> None:
+        """Under sim time, with other modules: at each instant up to ``limit`` at which
+        another module decides and this one does not, its features there
+        (:meth:`Decider.observe`: no draw, its state untouched) on ``~/observation``, in
+        order, once that instant's readings are in (the headless runner records the acting
+        module's; the learner uses those of the module that acted)."""
+        if self.pub_obs is None or not self.sim_time or self.t0 is None:
+            return
+        dt = self.clock.dt
+        while (tj := self.t0 + self.obs_k * dt) <= limit + _TOL:
+            due = self.clock.due_at(self.obs_k)
+            if self.index in due and tj > self.last_t + _TOL:
+                return                          # its own decision first
+            passed = tj < self.last_t - _TOL or tj < self.wheels_t - _TOL
+            if not due or self.index in due or passed:
+                self.obs_k += 1
+                continue
+            found = self._reading_at(tj)
+            if found is None or ('wheels' in self.sensors and self.wheels_t < tj - _TOL
+                                 and not (self.wheels and self.wheels[-1][0] >= tj - _TOL)):
+                return                          # its readings are on their way
+            self._integrate_wheels(tj)
+            dest, lm, d_o, rays = found
+            b = self.decider.observe(Percept(tj, dest, d_o, lm, rays, self.last_wheels))
+            self.pub_obs.publish(conv.observation_msg(self.decider.name, tj, b))
+            self.obs_k += 1
+
     def _try_decide(self) -> None:
         if not self.due or self.t0 is None or self.decider.version < self.expect_version:
             self.on_demand.active = False
@@ -419,20 +489,8 @@ class ModuleNode(GraphNode):
                 and not (self.wheels and self.wheels[-1][0] >= t - _TOL):
             return
         self.on_demand.active = False
-        # odometry: the wheel velocities of every step that ended after the last reading
-        # used, up to this one (each held since the previous reading)
-        while self.wheels and self.wheels[0][0] <= t + _TOL:
-            tw, vl, vr = self.wheels.popleft()
-            if tw > self.wheels_t + _TOL:
-                # held for a whole number of ticks under sim time: that many dt exactly, as
-                # the headless runner integrates (the stamps' difference is dt to rounding)
-                held = tw - self.wheels_t
-                ticks = round(held / self.clock.dt)
-                if self.sim_time and ticks >= 1 and abs(held - ticks * self.clock.dt) <= _TOL:
-                    held = ticks * self.clock.dt
-                self.decider.on_wheels(vl, vr, held)
-                self.wheels_t = tw
-            self.last_wheels = np.array((vl, vr))
+        self._observe_pending(t - 2 * _TOL)     # the other modules' instants before it
+        self._integrate_wheels(t)
         mark(self.trace_decide, t)
         # the draws of the instant: the agent stream's (the runner's), or off the grid a
         # stream of the module's own

@@ -184,6 +184,11 @@ class EpisodeStream:
             last = self.clock.last_before(i, t_end, t0)
             if self.buffer.last_decision(m.name) < last - TIME_TOL:
                 missing.append(f'the decision of {m.name} at {last:.3f} s')
+            # its observation at the last instant of another module before t_end (the module
+            # nodes send one at every such instant)
+            obs = self.clock.last_observed(i, t_end, t0) if len(self.modules) > 1 else None
+            if obs is not None and self.buffer.last_observation(m.name) < obs - TIME_TOL:
+                missing.append(f'the observation of {m.name} at {obs:.3f} s')
         return missing
 
     # ------------------------------------------------------------------ learning
@@ -207,9 +212,8 @@ class EpisodeStream:
         diag = self.learner.learn(mem) if learnable else {}
         if learnable:
             self.version += 1
-        # off-policy steps whose behaviour density was scored at the behaviour's held state:
-        # the module nodes publish no observations between their decisions (yet), so with
-        # learner.behaviour_state = resampled the graph's Async episodes fall back to 'held'
+        # off-policy steps whose behaviour density was scored at the behaviour's held state
+        # (with learner.behaviour_state = resampled: an observation that did not arrive)
         held = self.learner.held_steps - held
         core = episode_row(mem, self.names, probs, values, diag, ep['start'])
         row = {'label': self.condition, 'condition': self.condition, 'seed': self.seed,

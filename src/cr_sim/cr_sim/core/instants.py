@@ -99,3 +99,14 @@ class DecisionClock:
         """The last decision instant of module ``i`` strictly before stamp ``t`` (by more
         than :data:`TOL`)."""
         return self.last_instant(i, t - 2 * TOL, t0)
+
+    def last_observed(self, i: int, t: float, t0: float) -> float | None:
+        """The last instant strictly before stamp ``t`` at which another module decides and
+        module ``i`` does not (None: none since ``t0``)."""
+        k = math.floor((t - 2 * TOL - t0) / self.dt + TOL / self.dt)
+        while k > 0:
+            due = self.schedule[k % self.cycle]
+            if due and i not in due:
+                return t0 + k * self.dt
+            k -= 1
+        return None
