@@ -9,11 +9,11 @@ next learned episodes (judged by its checkpoint), each time resumed from its che
 with the same run uninterrupted (the graph as ``clis run`` starts it, one process per node):
 ``episodes.csv``, ``checkpoint.npz`` and ``curve.csv`` are the same bytes.
 
-That holds because every node draws an episode's randomness from (seed, episode), the
-simulator's robot and clock go on from where the checkpoint's episode left them (its
-``sim_state``), the learner learns exactly ``--episodes`` episodes, and a checkpoint's bytes are
-its content (fixed zip entry times); the graph in lockstep computes the same episodes on any
-load.
+That holds because the simulator's robot, clock and random streams (its own, the starts' and
+the agent stream the modules and the arbiter replay, announced at each start) go on from where
+the checkpoint's episode left them (its ``sim_state``), the learner learns exactly
+``--episodes`` episodes, and a checkpoint's bytes are its content (fixed zip entry times); the
+graph in lockstep computes the same episodes on any load.
 
 A process's start costs seconds of CPU (numba, rclpy): the interrupted runs are ``clis run
 --single-process`` called in this process (``clis``'s main, stopped by a SIGINT to this

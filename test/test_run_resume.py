@@ -50,7 +50,8 @@ def test_resume_into_the_same_out_numbers_on_and_draws_anew(tmp_path):
     first = rows(out)
     assert [r['episode'] for r in first] == ['1', '2']
     assert meta(out / 'checkpoint.npz')['episode'] == 2
-    assert len(meta(out / 'checkpoint.npz')['sim_state'].split()) == 7   # where it goes on
+    # where it goes on: the robot, the clock (7 hex floats) and the random streams (base64)
+    assert len(meta(out / 'checkpoint.npz')['sim_state'].split()) == 8
     stale = dict(first[-1], episode='3', label='stale')   # written after the checkpoint
     with open(out / 'episodes.csv', 'a', newline='') as fh:
         csv.DictWriter(fh, fieldnames=list(stale)).writerow(stale)

@@ -129,52 +129,29 @@ def _replay(args: argparse.Namespace) -> int:
 
 def feed_stream(stream: Any, messages: Iterable[Any], namespace: str = '/') -> Iterator[Any]:
     """Feed a bag's messages (:class:`~clis_learner.core.bag.BagMessage`, recorded order) to an
-    :class:`~clis_learner.core.stream.EpisodeStream` as the learner node's callbacks do; yield
-    each closed episode (:class:`~clis_learner.core.stream.Closed`). An episode that ended
-    is closed at the next start or at the end of the messages (all its records are in by
-    then)."""
-    from clis_modules.module_node import END_EVENTS
-    from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import Vector3Stamped
+    :class:`~clis_learner.core.stream.EpisodeStream` through the learner node's routing
+    (:mod:`clis_learner.stream_topics`); yield each closed episode
+    (:class:`~clis_learner.core.stream.Closed`). An episode that ended is closed at the next
+    start or at the end of the messages (all its records are in by then)."""
     from rclpy.serialization import deserialize_message
-    from sensor_msgs.msg import JointState
 
-    from clis_modules import conversions as mconv
-    from cr_sim import conversions as rconv
+    from clis_learner.stream_topics import EPISODE, feed_episode, feed_record, record_topics
 
+    routes = {topic: (kind, msg_type)
+              for kind, topic, msg_type in record_topics(stream.names, namespace)}
     ns = '/' + namespace.strip('/') + '/' if namespace.strip('/') else '/'
-    proposals = {f'{ns}{name}/proposal' for name in stream.names}
-    action, selection = f'{ns}arbiter/action', f'{ns}arbiter/selection'
-    reward, episode = f'{ns}reward', f'{ns}episode'
+    episode = ns + EPISODE[0]
     for m in messages:
-        if m.topic in proposals:
+        if m.topic in routes:
+            kind, msg_type = routes[m.topic]
             try:
-                stream.proposal(mconv.proposal_from_msg(deserialize_message(m.data, JointState)))
+                feed_record(stream, kind, deserialize_message(m.data, msg_type))
             except (ValueError, KeyError):
                 pass                                    # the live node ignores it too
-        elif m.topic == action:
-            try:
-                stream.action(*mconv.action_from_msg(deserialize_message(m.data, JointState)))
-            except KeyError:
-                pass
-        elif m.topic == selection:
-            t, _, probs, values = mconv.selection_from_msg(deserialize_message(m.data,
-                                                                               JointState))
-            stream.selection(t, probs, values)
-        elif m.topic == reward:
-            t, r, _ = rconv.reward_from_msg(deserialize_message(m.data, Vector3Stamped))
-            stream.reward(t, r)
         elif m.topic == episode:
-            t, event, values = rconv.episode_from_msg(deserialize_message(m.data,
-                                                                          DiagnosticArray))
-            index = int(values.get('episode', -1))
-            if event == 'start':
-                closed = stream.start(t, index, values.get('start', ''))
-                if closed is not None:
-                    yield closed
-            elif event in END_EVENTS:
-                stream.end(t, index, event,
-                           sim_return=float(values.get('episode_return', 'nan')))
+            ev = feed_episode(stream, deserialize_message(m.data, EPISODE[1]))
+            if ev.closed is not None:
+                yield ev.closed
     if stream.closing is not None:
         yield stream.close()
 

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 from pathlib import Path
 import sys
 
 import numpy as np
+
+from clis_learner.core.runner import JobResult
 
 __all__ = ['divergence_rows', 'main']
 
@@ -55,7 +56,7 @@ def load_train_rows(out: Path) -> list[dict[str, str]]:
         raise FileNotFoundError(f'{path}: no such file, and no runs/*.json (a clis experiment '
                                 'folder?)')
     return [{k: str(v) for k, v in e.items()} for p in runs
-            for e in json.loads(p.read_text())['episodes']]
+            for e in JobResult.load(p).table_episodes()]
 
 
 def divergence_rows(rows: list[dict[str, str]]) -> list[dict[str, float | str]]:

@@ -515,7 +515,7 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 def merge(results: list[JobResult], out: Path, wall_seconds: float | None) -> dict:
     """All runs into episodes.csv / eval.csv and the summary (with the results table)."""
-    _write_csv(out / 'episodes.csv', [r for res in results for r in res.episodes])
+    _write_csv(out / 'episodes.csv', [r for res in results for r in res.table_episodes()])
     _write_csv(out / 'eval.csv', [r for res in results for r in res.evals])
     labels = list(dict.fromkeys(res.spec['label'] for res in results))
     by_label: dict[str, dict] = {}

@@ -145,6 +145,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         'node.start_subscribers': matched,
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
+        # the headless runner's readings and agent stream (docs/design.md §6)
+        'node.readings': 'instants', 'node.agent_selection': clis.arbiter.selection,
         **({'node.first_episode': first_episode} if first_episode > 1 else {}),
         **({'node.resume_state': resume_state} if resume_state else {}),
         **priority('node.realtime_priority', 'sim')},

@@ -58,6 +58,7 @@ from sensor_msgs.msg import JointState
 from clis_learner.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from clis_learner.core.config import ClisParams, params_hash
 from clis_learner.core.stream import Closed, EpisodeStream
+from clis_learner.stream_topics import feed_episode, feed_record, record_topics
 from clis_modules import conversions as mconv
 from cr_sim import conversions as rconv
 
@@ -121,11 +122,13 @@ class LearnerNode(GraphNode):
         def stream(msg_type, topic: str, callback):
             return self.create_subscription(msg_type, topic, callback, rconv.STREAM_DEPTH,
                                             callback_group=on_demand)
-        self.streams = [*[stream(JointState, f'{name}/proposal', self._on_proposal)
-                          for name in self.names],
-                        stream(JointState, 'arbiter/action', self._on_action),
-                        stream(JointState, 'arbiter/selection', self._on_selection),
-                        stream(Vector3Stamped, 'reward', self._on_reward)]
+        # the record streams and their routing into the episode stream (stream_topics, as
+        # clis learn reads a bag)
+        callbacks = {'proposal': self._on_proposal, 'observation': self._on_observation,
+                     'action': self._on_action,
+                     'selection': self._on_selection, 'reward': self._on_reward}
+        self.streams = [stream(msg_type, topic, callbacks[kind])
+                        for kind, topic, msg_type in record_topics(self.names)]
         self.sub_episode = self.create_subscription(DiagnosticArray, 'episode',
                                                     self._on_episode, LATCHED)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -175,14 +178,21 @@ class LearnerNode(GraphNode):
     def _on_proposal(self, msg: JointState) -> None:
         self.record_wall = time.monotonic()
         try:
-            self.stream.proposal(mconv.proposal_from_msg(msg))
+            feed_record(self.stream, 'proposal', msg)
         except (ValueError, KeyError) as exc:
             self.get_logger().error(f'ignored proposal: {exc}')
+
+    def _on_observation(self, msg: JointState) -> None:
+        self.record_wall = time.monotonic()
+        try:
+            feed_record(self.stream, 'observation', msg)
+        except (ValueError, KeyError) as exc:
+            self.get_logger().error(f'ignored observation: {exc}')
 
     def _on_action(self, msg: JointState) -> None:
         self.record_wall = time.monotonic()
         try:
-            self.stream.action(*mconv.action_from_msg(msg))
+            feed_record(self.stream, 'action', msg)
         except KeyError as exc:
             self.get_logger().error(
                 f'ignored an action of {exc.args[0]!r}, not a module of condition '
@@ -190,33 +200,27 @@ class LearnerNode(GraphNode):
                 throttle_duration_sec=5.0)
 
     def _on_selection(self, msg: JointState) -> None:
-        t, _, probs, values = mconv.selection_from_msg(msg)
-        self.stream.selection(t, probs, values)
+        feed_record(self.stream, 'selection', msg)
 
     def _on_reward(self, msg: Vector3Stamped) -> None:
         self.record_wall = time.monotonic()
-        t, r, _ = rconv.reward_from_msg(msg)
-        self.stream.reward(t, r)
+        feed_record(self.stream, 'reward', msg)
 
     def _on_episode(self, msg: DiagnosticArray) -> None:
         self._take_streams()
-        t, event, values = rconv.episode_from_msg(msg)
-        index = int(values.get('episode', -1))
-        if event == 'start':
-            closed = self.stream.start(t, index, values.get('start', ''))
-            if closed is not None:
-                self._closed(closed)
+        now = time.monotonic()
+        ev = feed_episode(self.stream, msg, now + self.cfg.close_timeout,
+                          now + self.cfg.close_grace)
+        if ev.event == 'start':
+            if ev.closed is not None:
+                self._closed(ev.closed)
             if self.cfg.episodes and self.version >= self.cfg.episodes:
                 self.stream.episode = None        # the run has learned its episodes
-        elif event in END_EVENTS:
-            if 'resume_state' in values:
-                self.resume_states[index] = values['resume_state']
-            now = time.monotonic()
-            skipped = self.stream.end(t, index, event, now + self.cfg.close_timeout,
-                                      now + self.cfg.close_grace,
-                                      float(values.get('episode_return', 'nan')))
-            if skipped is not None:               # its start was not seen: nothing to learn
-                self._progress(skipped, t)
+        elif ev.event in END_EVENTS:
+            if 'resume_state' in ev.values:
+                self.resume_states[ev.index] = ev.values['resume_state']
+            if ev.skipped is not None:            # its start was not seen: nothing to learn
+                self._progress(ev.skipped, ev.t)
             elif self.stream.closing is not None:
                 self.closer.reset()               # wait for its records
 

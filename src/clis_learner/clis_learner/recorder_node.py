@@ -82,6 +82,8 @@ def graph_topics(condition: str, clis: Any) -> dict[str, str]:
     for name in parse_condition(condition).modules:
         plugin = clis.module(name)[0]
         topics[f'{name}/proposal'] = topics[f'{name}/params'] = 'sensor_msgs/msg/JointState'
+        if len(parse_condition(condition).modules) > 1:
+            topics[f'{name}/observation'] = 'sensor_msgs/msg/JointState'
         topics.update({f'{name}/{t}': typ for t, typ in plugin.topics.items()})
     return topics
 

@@ -34,8 +34,10 @@ from __future__ import annotations
 import math
 import time
 
+from cr_sim.core.instants import DecisionClock
 from cr_sim.core.params import dataclass, param
 from cr_sim.core.robot import load_robot_params
+from cr_sim.core.sim import load_sim_params
 from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
@@ -53,6 +55,7 @@ from clis_modules.core.modules import (
     module_gamma,
     speed_limit,
 )
+from clis_modules.core.streams import AgentStream, selection_draws
 from clis_modules.graph_node import GraphNode, run_node
 from clis_modules.module_node import END_EVENTS, LATCHED
 from cr_sim import conversions as rconv
@@ -93,8 +96,17 @@ class ArbiterNode(GraphNode):
         names, gammas, v_max, taus = module_timing(
             common, condition_periods(self.clis, self.graph.condition))
         self.names = names
+        # the selections' draws: the headless runner's agent stream (seed, 2), replayed over
+        # the condition's decision instants (cr_sim.core.streams); off them (real time, a
+        # timeout) from (seed, 3)
+        self.clock_periods = [float(tau) for tau in taus]
+        self.clock = DecisionClock(self.clock_periods, load_sim_params().episode.dt)
+        self.stream = AgentStream(np.random.default_rng([self.graph.seed, 2]), len(names),
+                                  self.clis.arbiter.selection, self.clock,
+                                  fallback=np.random.default_rng([self.graph.seed, 3]))
         self.selector = Selector(names, gammas, v_max, taus, self.clis.arbiter, common.beta,
-                                 np.random.default_rng([self.graph.seed, 3]))
+                                 selection_draws(self.stream))
+        self.t0: float | None = None
         self.wheel_base = load_robot_params().wheel_base
         cmd_type = TwistStamped if self.cfg.cmd_vel_stamped else Twist
         self.pub_cmd = self.create_publisher(cmd_type, 'cmd_vel', rconv.STREAM_DEPTH)
@@ -111,7 +123,7 @@ class ArbiterNode(GraphNode):
         self.sent = None                             # (cmd_vel, stamp, wall time) sent last
         self._advancing = False
         if self.cfg.lockstep and self.sim_time:
-            self.barrier = TickBarrier(names, taus, self.cfg.lockstep_timeout)
+            self.barrier = TickBarrier(names, taus, self.cfg.lockstep_timeout, self.clock.dt)
             self.clock_on_demand()
             self.on_clock_advance(self._on_tick)
             self.create_timer(0.01, self._advance, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -126,16 +138,23 @@ class ArbiterNode(GraphNode):
     def _on_episode(self, msg: DiagnosticArray) -> None:
         t, event, values = rconv.episode_from_msg(msg)
         if event == 'start':
-            # the draws' randomness in this episode: from (seed, episode), whatever happened
-            # at the end of the last one
-            self.selector.arbiter.rng = np.random.default_rng(
-                [self.graph.seed, 3, int(values.get('episode', 0))])
+            dt = float(values.get('dt', self.clock.dt))
+            if dt != self.clock.dt:
+                self.clock = self.stream.clock = DecisionClock(self.clock_periods, dt)
+            if 'agent_state' in values:              # the stream where the simulator says
+                self.stream.set_state(values['agent_state'])
+            else:
+                self.stream.begin_episode()
+            self.t0 = t
             self.selector.begin_episode(t)
             if self.barrier is not None:
-                self.barrier.begin_episode(t)
+                self.barrier.begin_episode(t, dt)
                 self.barrier.on_tick(t, time.monotonic())     # the clock may be there already
                 self._advance()
         elif event in END_EVENTS and self.selector.running:
+            if self.t0 is not None and (k := self.clock.tick(t, self.t0)) is not None:
+                self.stream.end_episode(k)
+            self.t0 = None
             if self.barrier is not None:
                 self.barrier.end_episode()
             self._publish(self.selector.end_episode(t))     # after all of its actions
@@ -162,6 +181,7 @@ class ArbiterNode(GraphNode):
             self.barrier.on_proposal(p)
             self._advance()
         else:
+            self._instant(p.t)
             self._publish(self.selector.on_proposals([p], self.now_s()))
 
     def _on_liveliness(self, name: str, alive: int) -> None:
@@ -213,6 +233,7 @@ class ArbiterNode(GraphNode):
                 f'for t = {oldest:.3f} s within {self.cfg.lockstep_timeout} s (episode start '
                 f'{self.barrier.t0:.3f}): answering without it until it does')
         for t, ps in answered:
+            self._instant(t)
             cmd = self.selector.on_proposals(ps, t) if ps else None
             if cmd is None:
                 cmd = self.selector.check(t)
@@ -220,6 +241,12 @@ class ArbiterNode(GraphNode):
                 self._publish(cmd)
             else:                                    # the command in force, for this instant
                 self._send(self.u_exec, t)
+
+    def _instant(self, t: float) -> None:
+        """The agent stream's draws of instant ``t`` (of the running episode), for the
+        selection the arbiter may draw there."""
+        if self.t0 is not None and (k := self.clock.tick(t, self.t0)) is not None:
+            self.stream.instant(k)
 
     def _send(self, u_exec: np.ndarray, t: float) -> None:
         self.u_exec = u_exec

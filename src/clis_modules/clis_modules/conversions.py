@@ -41,7 +41,8 @@ from sensor_msgs.msg import JointState
 
 from clis_modules.core.proposal import Proposal
 
-__all__ = ['PROPOSAL_FIELDS', 'PARAMS_FIELDS', 'proposal_msg', 'proposal_from_msg',
+__all__ = ['PROPOSAL_FIELDS', 'PARAMS_FIELDS', 'OBSERVATION_FIELDS', 'observation_msg',
+           'observation_from_msg', 'proposal_msg', 'proposal_from_msg',
            'params_msg', 'params_from_msg', 'selection_msg', 'selection_from_msg',
            'action_msg', 'action_from_msg', 'belief_msg']
 
@@ -89,6 +90,26 @@ def proposal_from_msg(msg: JointState) -> Proposal:
     v = _np(msg.position)
     return Proposal(msg.header.frame_id, from_time(msg.header.stamp), _np(msg.velocity),
                     v[0:2].copy(), v[2:4].copy(), float(v[4]), float(v[5]), int(v[6]))
+
+
+#: ``name`` of an observation message (its features are in ``velocity``).
+OBSERVATION_FIELDS = ('observation',)
+
+
+def observation_msg(module: str, t: float, b: ArrayLike) -> JointState:
+    """A module's features ``b`` at ``t``, an instant at which it did not decide (the
+    behaviour's state of (6): :meth:`~clis_modules.core.decider.Decider.observe`)."""
+    msg = JointState(name=list(OBSERVATION_FIELDS))
+    msg.header.stamp, msg.header.frame_id = to_time(t), module
+    msg.velocity = _f64(np.asarray(b, dtype=np.float64))
+    return msg
+
+
+def observation_from_msg(msg: JointState) -> tuple[str, float, np.ndarray]:
+    """Inverse of :func:`observation_msg`: ``(module, t, b)``; ValueError on another
+    layout."""
+    _check(msg, OBSERVATION_FIELDS, 'observation')
+    return msg.header.frame_id, from_time(msg.header.stamp), _np(msg.velocity)
 
 
 def params_msg(module: str, w: ArrayLike, W: ArrayLike, sigma: float,  # noqa: N803

@@ -27,6 +27,12 @@ the new episode, and restarts its timer, so that its decisions fall at ``t_0 + l
 the headless runner; after ``reached``/``timeout``/``reset`` it stays silent until the next
 start.
 
+Randomness: the headless runner's agent stream ``(seed, 2)``, replayed over the condition's
+decision instants (:mod:`cr_sim.core.streams`: the node makes every module's and the
+arbiter's draws in the runner's order and keeps its own), from the state the simulator
+announces at each start; a decision off the tick grid (real time) draws from a stream of its
+own.
+
 Parameters from the learner (``~/params``, transient local: a restarted module gets the latest
 at once) change only between episodes, as in the headless runner: they are applied before the
 first decision of an episode. A ``start`` event that announces a parameter version
@@ -41,8 +47,10 @@ import math
 import time
 import zlib
 
+from cr_sim.core.instants import TOL, DecisionClock
 from cr_sim.core.params import ConfigError, dataclass, param
 from cr_sim.core.robot import load_robot_params
+from cr_sim.core.sim import load_sim_params
 from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
@@ -54,13 +62,14 @@ from sensor_msgs.msg import JointState, LaserScan
 from clis_modules import conversions as conv
 from clis_modules.core.decider import Decider, Percept
 from clis_modules.core.modules import MODULE_NAMES, arena_map, condition_periods, make_module
+from clis_modules.core.streams import AgentStream, module_draws
 from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from cr_sim import conversions as rconv
 
 __all__ = ['ModuleNodeParams', 'ModuleNode', 'main', 'main_innate', 'main_view', 'main_place']
 
 #: Two stamps closer than this [s] are the same instant.
-_TOL = 1e-6
+_TOL = TOL
 #: Wall seconds a due decision may wait before the module logs why it waits.
 STALL_WARNING = 2.0
 #: QoS of the latched topics (episode events, parameters).
@@ -89,7 +98,8 @@ class ModuleNode(GraphNode):
     def __init__(self, kind: str | None = None) -> None:
         super().__init__(kind or 'module', 'module', ModuleNodeParams)
         kind = self.get_name()                  # the instance (``-r __node:=NAME``)
-        periods = dict(condition_periods(self.clis, self.graph.condition))
+        listed = condition_periods(self.clis, self.graph.condition)
+        periods = dict(listed)
         if kind not in periods:
             raise ConfigError(f'graph.condition = {self.graph.condition!r} has no {kind} '
                               f'module (it runs {", ".join(periods)})')
@@ -100,7 +110,17 @@ class ModuleNode(GraphNode):
         self.kind_index = (MODULE_NAMES.index(kind) if kind in MODULE_NAMES
                            else zlib.crc32(kind.encode()))
         self.sensors = set(module.sensors) | ({'wheels'} if module.on_motion else set())
-        self.decider = Decider(module, self._episode_rng(0), load_robot_params().wheel_base)
+        # the decisions' draws: the headless runner's agent stream (seed, 2), replayed over
+        # the condition's decision instants (cr_sim.core.streams); the tick dt comes with each
+        # start event (config/sim.yaml's until then)
+        self.index = [name for name, _ in listed].index(kind)
+        self.taus = [tau for _, tau in listed]
+        self.clock = DecisionClock(self.taus, load_sim_params().episode.dt)
+        self.stream = AgentStream(np.random.default_rng([self.graph.seed, 2]), len(listed),
+                                  self.clis.arbiter.selection, self.clock)
+        self.draws = module_draws(self.stream, self.index)
+        self.off_grid_rng = self._episode_rng(0)
+        self.decider = Decider(module, self.off_grid_rng, load_robot_params().wheel_base)
         # compiled kernels ready before the node joins the graph (Decider.warm_up: a kernel
         # compiled at the first decision would miss the lockstep's first instants)
         self.decider.warm_up(len(arena.landmarks))
@@ -129,6 +149,11 @@ class ModuleNode(GraphNode):
             f'{kind}_clock', f'{kind}_decide', f'{kind}_pub')
 
         self.pub = self.create_publisher(JointState, '~/proposal', self.graph.proposal_qos())
+        # the module's features at the other modules' instants (the behaviour's state of (6)
+        # for the learner, as the headless runner records it): with more than one module
+        self.pub_obs = (self.create_publisher(JointState, '~/observation', rconv.STREAM_DEPTH)
+                        if len(listed) > 1 else None)
+        self.obs_k = 0                          # the next tick of the episode to observe at
         self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
                            if module.display is not None else None)
         # the readings of the plug-in's sensors, taken at the decision instants (docstring)
@@ -196,8 +221,11 @@ class ModuleNode(GraphNode):
     def _on_episode(self, msg: DiagnosticArray) -> None:
         t, event, values = rconv.episode_from_msg(msg)
         if event == 'start':
+            self._start_stream(values)
             self._start(t, int(values.get('params_version', 0)), int(values.get('episode', 0)))
         elif event in END_EVENTS:
+            if self.t0 is not None and (k_end := self.clock.tick(t, self.t0)) is not None:
+                self.stream.end_episode(k_end)      # the draws of its instants before t
             self.t0, self.due, self.ended_t = None, False, t
 
     def _on_params(self, msg: JointState) -> None:
@@ -227,7 +255,18 @@ class ModuleNode(GraphNode):
 
     def _grid(self, t: float) -> float:
         """The last decision instant ``t_0 + l tau_i`` at or before ``t``."""
-        return self.t0 + math.floor((t - self.t0) / self.period + 1e-6) * self.period
+        return self.clock.last_instant(self.index, t, self.t0)
+
+    def _start_stream(self, values: dict) -> None:
+        """At a start event: the tick and the agent stream's state it announces (a simulator
+        keeping the stream: docs/design.md §6), else the stream goes on from the last end."""
+        dt = float(values.get('dt', self.clock.dt))
+        if dt != self.clock.dt:
+            self.clock = self.stream.clock = DecisionClock(self.taus, dt)
+        if 'agent_state' in values:
+            self.stream.set_state(values['agent_state'])
+        else:
+            self.stream.begin_episode()
 
     def _mark_due(self, g: float) -> None:
         """Under sim time: decide on the readings of grid instant ``g`` (the simulator
@@ -254,10 +293,13 @@ class ModuleNode(GraphNode):
             # anyway (no wakeup of their own), so that a decision takes only its instant's
             # instead of a period's worth (72 messages for the place module) on its path
             self._take_readings()
+            self._observe_pending(t)
 
     def _on_wall(self) -> None:
         now = time.monotonic()
         self._take_readings()                   # the queues stay short between decisions
+        if not self.due and self.t0 is not None:
+            self._observe_pending(self.now_s())
         if self.due:
             # a due decision waits for readings, and the executor runs the timers of a wakeup
             # before its subscriptions: a reading this took is one whose callback will not
@@ -307,19 +349,19 @@ class ModuleNode(GraphNode):
     # ------------------------------------------------------------------ decisions
 
     def _episode_rng(self, episode: int) -> np.random.Generator:
-        """The decisions' randomness in ``episode``: from (seed, module, episode), so that a
-        run does not depend on whether the module happened to decide once more at the last
-        instant of the episode before (before its end event arrived)."""
+        """The draws of a decision off the decision instants (real time, no tick grid): from
+        (seed, 2, module, episode)."""
         return np.random.default_rng([self.graph.seed, 2, self.kind_index, episode])
 
     def _start(self, t0: float, version: int, episode: int = 0) -> None:
         self.decider.reset()
-        self.decider.rng = self._episode_rng(episode)
+        self.off_grid_rng = self._episode_rng(episode)
         self._apply_pending()
         self.t0 = t0
         self.expect_version = version
         self.wait_until = time.monotonic() + self.cfg.params_timeout
         self.wheels_t = t0
+        self.obs_k = 0
         self.timer.reset()
         self.marked = -math.inf
         if not self.sim_time:
@@ -369,6 +411,67 @@ class ModuleNode(GraphNode):
                     break
         return found
 
+    def _integrate_wheels(self, t: float) -> None:
+        """Odometry: the wheel velocities of every step that ended after the last reading
+        used, up to ``t`` (each held since the previous reading)."""
+        while self.wheels and self.wheels[0][0] <= t + _TOL:
+            tw, vl, vr = self.wheels.popleft()
+            if tw > self.wheels_t + _TOL:
+                # held for a whole number of ticks under sim time: that many dt exactly, as
+                # the headless runner integrates (the stamps' difference is dt to rounding)
+                held = tw - self.wheels_t
+                ticks = round(held / self.clock.dt)
+                if self.sim_time and ticks >= 1 and abs(held - ticks * self.clock.dt) <= _TOL:
+                    held = ticks * self.clock.dt
+                self.decider.on_wheels(vl, vr, held)
+                self.wheels_t = tw
+            self.last_wheels = np.array((vl, vr))
+
+    def _reading_at(self, t: float) -> tuple | None:
+        """The readings of instant ``t`` the module reads: ``(dest bearing, landmark
+        bearings, d_o, rays)``, or None while one has not arrived."""
+        cam = None
+        if 'camera' in self.sensors:
+            cam = next(((dest, lm) for tc, dest, lm in reversed(self.camera)
+                        if abs(tc - t) <= _TOL), None)
+            if cam is None:
+                return None
+        ir = (math.nan, None)
+        if 'ir' in self.sensors or 'camera' not in self.sensors:
+            ir = next(((d_o, rays) for ti, d_o, rays in reversed(self.ir)
+                       if abs(ti - t) <= _TOL), None)
+            if ir is None:
+                return None
+        dest, lm = cam if cam is not None else (math.nan, self._unseen)
+        return dest, lm, *ir
+
+    def _observe_pending(self, limit: float) -> None:
+        """Under sim time, with other modules: at each instant up to ``limit`` at which
+        another module decides and this one does not, its features there
+        (:meth:`Decider.observe`: no draw, its state untouched) on ``~/observation``, in
+        order, once that instant's readings are in (the headless runner records the acting
+        module's; the learner uses those of the module that acted)."""
+        if self.pub_obs is None or not self.sim_time or self.t0 is None:
+            return
+        dt = self.clock.dt
+        while (tj := self.t0 + self.obs_k * dt) <= limit + _TOL:
+            due = self.clock.due_at(self.obs_k)
+            if self.index in due and tj > self.last_t + _TOL:
+                return                          # its own decision first
+            passed = tj < self.last_t - _TOL or tj < self.wheels_t - _TOL
+            if not due or self.index in due or passed:
+                self.obs_k += 1
+                continue
+            found = self._reading_at(tj)
+            if found is None or ('wheels' in self.sensors and self.wheels_t < tj - _TOL
+                                 and not (self.wheels and self.wheels[-1][0] >= tj - _TOL)):
+                return                          # its readings are on their way
+            self._integrate_wheels(tj)
+            dest, lm, d_o, rays = found
+            b = self.decider.observe(Percept(tj, dest, d_o, lm, rays, self.last_wheels))
+            self.pub_obs.publish(conv.observation_msg(self.decider.name, tj, b))
+            self.obs_k += 1
+
     def _try_decide(self) -> None:
         if not self.due or self.t0 is None or self.decider.version < self.expect_version:
             self.on_demand.active = False
@@ -386,15 +489,17 @@ class ModuleNode(GraphNode):
                 and not (self.wheels and self.wheels[-1][0] >= t - _TOL):
             return
         self.on_demand.active = False
-        # odometry: the wheel velocities of every step that ended after the last reading
-        # used, up to this one (each held since the previous reading)
-        while self.wheels and self.wheels[0][0] <= t + _TOL:
-            tw, vl, vr = self.wheels.popleft()
-            if tw > self.wheels_t + _TOL:
-                self.decider.on_wheels(vl, vr, tw - self.wheels_t)
-                self.wheels_t = tw
-            self.last_wheels = np.array((vl, vr))
+        self._observe_pending(t - 2 * _TOL)     # the other modules' instants before it
+        self._integrate_wheels(t)
         mark(self.trace_decide, t)
+        # the draws of the instant: the agent stream's (the runner's), or off the grid a
+        # stream of the module's own
+        k = self.clock.tick(t, self.t0)
+        if k is not None and self.clock.is_due(self.index, k):
+            self.stream.instant(k)
+            self.decider.rng = self.draws
+        else:
+            self.decider.rng = self.off_grid_rng
         p = self.decider.decide(Percept(t, dest, d_o, lm, rays, self.last_wheels))
         self.due, self.last_t, self.last_grid = False, t, self.due_t
         msg = conv.proposal_msg(p, self.now_s())

@@ -20,7 +20,9 @@ replaced by a stop.
 
 from __future__ import annotations
 
+import base64
 from collections import deque
+import json
 import time
 
 import numpy as np
@@ -32,10 +34,12 @@ from rclpy.node import Node
 from cr_sim import conversions as conv
 from cr_sim.core.arena import load_arena
 from cr_sim.core.gate import EpisodeGate
+from cr_sim.core.instants import DecisionClock
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.robot import robot_defaults
 from cr_sim.core.sim import SimParams, Simulator
 from cr_sim.core.starts import draw_start
+from cr_sim.core.streams import AgentStream
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
 from cr_sim.ros_support.executor import make_executor
 from cr_sim.ros_support.lifecycle import (
@@ -94,13 +98,20 @@ class SimNodeParams:
                                    'latency at 0 us (idle cores poll). Fail-soft without the '
                                    'right to it')
     first_episode: int = param(1, 2**31 - 1, doc='number of the first episode; > 1 resumes a '
-                               'run (clis run --resume). Each episode draws from (seed, stream, '
-                               'its number), so a resumed run draws what the run it continues '
-                               'would have')
+                               'run (clis run --resume, with resume_state)')
     resume_state: str = param(doc="'' or the resume_state of the end event of the episode "
                               'before first_episode (clis run --resume: from the checkpoint): '
                               'the robot starts its wander where it stood, the clock where it '
-                              'went on')
+                              'went on, the random streams where they stood')
+    readings: str = param(choices=('tick', 'instants'), doc="'tick': IR and camera read "
+                          "(their noise drawn) and published at every tick; 'instants': only "
+                          'at the decision instants of lockstep_periods, as the headless '
+                          'runner reads them (the wheels and the clock at every tick)')
+    agent_selection: str = param(choices=('', 'episode', 'decision'), doc="'' or the "
+                                 "arbiter's selection mode: the node then keeps the agent "
+                                 'stream (seed, 2) of the headless runner over the decision '
+                                 'instants of lockstep_periods and announces its state at '
+                                 'each start (agent_state)')
     round_trip_log: str = param(doc="lockstep: append 'sim_time round_trip_ms' of every held "
                                 "instant to this file ('' = none); p50/p99 are logged at exit")
 
@@ -116,11 +127,18 @@ class SimNode(Node):
         self.cfg = build(SimNodeParams, values.pop('node'), where='node')
         self.params = build(SimParams, values)
         self.arena = load_arena(self.cfg.arena_file or None)
-        # each episode's draws come from (seed, stream, episode) (:meth:`_start_episode`), so
-        # that a resumed run (first_episode > 1, resume_state) draws what the run it
-        # continues would have drawn, and does not replay episode 1's
+        # the headless runner's streams: the simulator (seed, 0) and the starts (seed, 1), each
+        # continuous over the episodes (a resumed run sets them from resume_state)
         self.sim = Simulator(self.arena, self.params, np.random.default_rng([self.cfg.seed, 0]))
         self.start_rng = np.random.default_rng([self.cfg.seed, 1])
+        periods = [p for p in self.cfg.lockstep_periods if p > 0.0]
+        self.clock = DecisionClock(periods, self.params.episode.dt) if periods else None
+        if self.cfg.readings == 'instants' and self.clock is None:
+            raise ConfigError("node.readings = 'instants' needs node.lockstep_periods")
+        # the agent stream (seed, 2) over the episodes, for the modules and the arbiter
+        self.agent = (AgentStream(np.random.default_rng([self.cfg.seed, 2]), len(periods),
+                                  self.cfg.agent_selection, self.clock)
+                      if self.cfg.agent_selection and self.clock is not None else None)
         self.wheel_base = self.params.robot.wheel_base
         self.u = np.zeros(2)
         self.u_time = -np.inf
@@ -134,7 +152,7 @@ class SimNode(Node):
         self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout,
                                 self.cfg.lockstep, self.cfg.command_timeout,
                                 hold_periods=self.cfg.lockstep_periods,
-                                graph_timeout=self.cfg.graph_timeout)
+                                graph_timeout=self.cfg.graph_timeout, dt=self.dt)
         # sensor-to-command round trips of the held instants [wall s], the newest 100,000
         self.round_trips: deque[float] = deque(maxlen=100_000)
         self._round_trip_log = (open(self.cfg.round_trip_log, 'a', buffering=1 << 16)
@@ -212,27 +230,37 @@ class SimNode(Node):
 
     def resume_state(self) -> str:
         """What the next episode starts from, exactly (``node.resume_state``): the robot's
-        pose, wheels and contact (:meth:`Simulator.carried`) and the clock, as hex floats."""
-        return ' '.join(float(v).hex() for v in (*self.sim.carried(), self._next_offset()))
+        pose, wheels and contact (:meth:`Simulator.carried`) and the clock, as hex floats,
+        then the random streams (the simulator's, the starts', the agent stream), as
+        URL-safe base64 of their JSON."""
+        streams = {'sim': self.sim.random_state(), 'starts': self.start_rng.bit_generator.state,
+                   'agent': self.agent.start_state if self.agent is not None else None}
+        packed = base64.urlsafe_b64encode(json.dumps(streams, sort_keys=True).encode())
+        return ' '.join([*(float(v).hex() for v in (*self.sim.carried(), self._next_offset())),
+                         packed.decode()])
 
     def _resume(self, text: str) -> None:
-        """Stand where the episode before ``first_episode`` left the robot and the clock."""
+        """Stand where the episode before ``first_episode`` left the robot, the clock and the
+        random streams."""
         try:
-            values = [float.fromhex(v) for v in text.split()]
-            if len(values) != 7:
-                raise ValueError(f'{len(values)} values, expected 7')
+            words = text.split()
+            if len(words) != 8:
+                raise ValueError(f'{len(words)} values, expected 8')
+            values = [float.fromhex(v) for v in words[:7]]
+            streams = json.loads(base64.urlsafe_b64decode(words[7]))
             self.sim.carry(values[:6])
-        except ValueError as exc:
+            self.sim.set_random_state(streams['sim'])
+            self.start_rng.bit_generator.state = streams['starts']
+            if self.agent is not None and streams['agent'] is not None:
+                self.agent.rng.bit_generator.state = streams['agent']
+                self.agent.begin_episode()
+        except (ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f'node.resume_state = {text!r}: {exc}') from None
         self._time_offset = values[6]
 
     def _start_episode(self) -> None:
         if self.episode >= self.cfg.first_episode:    # not this process's first
             self._time_offset = self._next_offset()
-        # this episode's draws: from (seed, stream, episode), whatever came before
-        number = self.episode + 1
-        self.sim.reseed(np.random.default_rng([self.cfg.seed, 0, number]))
-        self.start_rng = np.random.default_rng([self.cfg.seed, 1, number])
         start, heading = draw_start(self.cfg.start, self.arena, self.start_rng)
         self.sim.reset(start=start, heading=heading)
         self.episode += 1
@@ -241,6 +269,10 @@ class SimNode(Node):
         self.u[:] = 0.0
         self.u_time = -np.inf
         extra = {'params_version': self.gate.version} if self.cfg.wait_for_learner else {}
+        extra['dt'] = repr(self.dt)
+        if self.agent is not None:
+            self.agent.begin_episode()
+            extra['agent_state'] = self.agent.state()
         self.pub_episode.publish(conv.episode_msg(
             'start', self.sim_time, episode=self.episode, start=start,
             pose=' '.join(f'{p:.3f}' for p in self.sim.pose), **extra))
@@ -283,6 +315,8 @@ class SimNode(Node):
             self._resend()
 
     def _end_episode(self, event: str) -> None:
+        if self.agent is not None:      # the draws of the episode's instants (AgentStream)
+            self.agent.end_episode(int(round(self.sim.t / self.dt)))
         self.pub_episode.publish(conv.episode_msg(
             event, self.sim_time, episode=self.episode, episode_return=self.episode_return,
             duration=self.sim.t, resume_state=self.resume_state()))
@@ -298,28 +332,38 @@ class SimNode(Node):
         self.episode_return += res.reward
         self.pub_reward.publish(conv.reward_msg(res.reward, self.episode_return, self.episode,
                                                 self.sim_time))
-        self._publish_state()
+        self._publish_state(readings=not res.done)
         if res.done:
             self._end_episode('reached' if res.reached else 'timeout')
             if self.cfg.auto_reset and self.gate.ended(self.episode, time.monotonic()):
                 self._start_episode()
 
-    def _publish_state(self) -> None:
+    def _publish_state(self, readings: bool = True) -> None:
         """The robot's readings at the current instant, then ``/clock`` (so that a node whose
-        timer fires on this clock tick already has the readings stamped with it)."""
+        timer fires on this clock tick already has the readings stamped with it).
+
+        With ``node.readings = instants`` the IR and the camera are read (their noise drawn)
+        only at the decision instants and not at the tick an episode ends on (``readings``
+        False), as the headless runner reads them; the wheels go out at every tick."""
         t = self.sim_time
-        obs = self.sim.observe()
         frame = self.cfg.base_frame
         sensors = self.params.sensors
-        self._last = [
-            (self.pub_ir, conv.ir_msg(obs.ir, self.ir_angles, sensors.ir_range, t, frame)),
-            (self.pub_camera, conv.bearings_msg(
-                self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame)),
-            (self.pub_wheels, conv.wheels_msg(obs.wheels, t, frame))]
+        if self.cfg.readings == 'instants' and not (
+                readings and self.clock.is_instant(self.sim.t, 0.0)):
+            wheels = np.array(self.sim.carried()[3:5])
+            self._last = [(self.pub_wheels, conv.wheels_msg(wheels, t, frame))]
+        else:
+            obs = self.sim.observe()
+            wheels = obs.wheels
+            self._last = [
+                (self.pub_ir, conv.ir_msg(obs.ir, self.ir_angles, sensors.ir_range, t, frame)),
+                (self.pub_camera, conv.bearings_msg(
+                    self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame)),
+                (self.pub_wheels, conv.wheels_msg(wheels, t, frame))]
         # display only (ground truth, never a module input): built only for a subscriber
         if self.pub_odom.get_subscription_count():
             self._last.append((self.pub_odom, conv.odom_msg(
-                self.sim.pose, obs.wheels, self.wheel_base, t, self.cfg.map_frame, frame)))
+                self.sim.pose, wheels, self.wheel_base, t, self.cfg.map_frame, frame)))
         self._last.append((self.pub_clock, conv.clock_msg(t)))
         if t >= self.next_marker_t - 1e-6:   # sim_time sums floats: 0.1 may be 0.0999999
             self.next_marker_t = t + self.cfg.markers_period

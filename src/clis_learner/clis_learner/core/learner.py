@@ -146,7 +146,7 @@ class Learner:
         self.resampled = self.params.behaviour_state == 'resampled'
         #: Off-policy steps whose behaviour density was scored at a held state (its latest
         #: decision) since the learner was made: with ``behaviour_state = resampled``, the
-        #: steps of episodes without observations (the node graph's, for now).
+        #: off-policy steps scored at a held state for want of an observation (resampled).
         self.held_steps = 0
 
     def learn(self, memory: EpisodeMemory, update: bool = True) -> dict[str, dict[str, float]]:

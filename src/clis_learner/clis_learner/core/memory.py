@@ -179,8 +179,8 @@ class EpisodeMemory:
         """Features of ``module`` at the times ``t`` (M,), for its density in (6)(7).
 
         With ``resampled``, from its decision or its observation at ``t_l`` itself (within
-        :data:`TIME_TOL`), the state ``x(l tau_i)`` of (6); where neither was recorded (a node
-        graph's episode: the module nodes publish decisions only) and always without
+        :data:`TIME_TOL`), the state ``x(l tau_i)`` of (6); where neither was recorded (an
+        observation lost on its way) and always without
         ``resampled``: at its latest decision ``<= t_l`` (a held state).
 
         Returns
@@ -274,6 +274,11 @@ class StreamBuffer:
         """Module ``module``'s features ``b`` (not copied) at ``t`` [s], an instant at which it
         did not decide (:meth:`EpisodeMemory.record_observation`)."""
         _insert(self._obs[module], (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
+
+    def last_observation(self, module: str) -> float:
+        """Stamp of the newest observation of ``module`` held [s] (-inf: none)."""
+        items = self._obs[module]
+        return items[-1][0] if items else -math.inf
 
     def last_decision(self, module: str) -> float:
         """Stamp of the newest decision of ``module`` held [s] (-inf: none)."""

@@ -5,8 +5,10 @@ It is one of the two schedulers of the same cores (the other is the ROS node gra
 decides through its :class:`~clis_modules.core.decider.Decider`, the arbiter selects through the
 :class:`~clis_modules.core.arbiter.Selector`, and the learner's
 :class:`~clis_learner.core.memory.StreamBuffer` turns the timestamped records into the episode
-that :class:`~clis_learner.core.learner.Learner` learns from. Only where the inputs come from
-and when differs: here every record is made by this loop, in the nodes it arrives as a message.
+that :class:`~clis_learner.core.learner.Learner` learns from, assembled by the same
+:class:`~clis_learner.core.stream.EpisodeStream` as the learner node's and ``clis learn``'s.
+Only where the inputs come from and when differs: here every record is made by this loop and
+fed to it directly, in the nodes it arrives as a message.
 
 Time (docs/design.md §6): the simulator advances in ticks of ``episode.dt`` (50 ms). Module ``i``
 decides at every tick ``k`` with ``k mod n_i = 0``, ``n_i = tau_i / dt`` (5, 10, 24 ticks for
@@ -49,16 +51,16 @@ from clis_modules.core.modules import (
     make_modules,
 )
 from clis_modules.core.plugin import parse_condition, solo_condition
+from clis_modules.core.streams import AgentStream, module_draws, selection_draws
 from cr_sim.core.arena import Arena, load_arena
+from cr_sim.core.instants import DecisionClock
 from cr_sim.core.sim import SimParams, Simulator, load_sim_params
 from cr_sim.core.starts import draw_start
 import numpy as np
 
 from clis_learner.core.checkpoint import save_checkpoint
 from clis_learner.core.config import ClisParams, load_clis_params, params_hash
-from clis_learner.core.episodes import episode_row
-from clis_learner.core.learner import Learner
-from clis_learner.core.memory import EpisodeMemory, StreamBuffer
+from clis_learner.core.stream import EpisodeStream
 
 __all__ = ['CONDITIONS', 'Agent', 'run_episode', 'place_selection_map', 'JobSpec', 'JobResult',
            'run_job', 'warm_up']
@@ -75,7 +77,8 @@ class Agent:
     arena : Arena
         Landmarks and obstacles (the place module's localization grid).
     rng : np.random.Generator
-        Draws the selections and the modules' actions.
+        The agent stream: draws the selections and the modules' actions, in the order of
+        :class:`~clis_modules.core.streams.AgentStream` (the graph's nodes replay it).
     wheel_base : float
         Of the robot [m]: wheel velocities to odometry.
     """
@@ -87,13 +90,15 @@ class Agent:
         self.modules: list[ModuleCore] = make_modules(params, condition, *arena_map(arena))
         self.names = [m.name for m in self.modules]
         self.gammas = np.array([m.gamma for m in self.modules])
-        self.deciders = [Decider(m, rng, wheel_base) for m in self.modules]
+        self.stream = AgentStream(rng, len(self.modules), params.arbiter.selection)
+        self.deciders = [Decider(m, module_draws(self.stream, i), wheel_base)
+                         for i, m in enumerate(self.modules)]
         self.selector = Selector(self.names, self.gammas, [m.v_max for m in self.modules],
                                  [m.period for m in self.modules], params.arbiter,
-                                 params.common.beta, rng)
-        self.learner = Learner(self.modules, params)
-        self.buffer = StreamBuffer(self.names)
-        self.memory = EpisodeMemory(self.names)
+                                 params.common.beta, selection_draws(self.stream))
+        #: the episode assembly (the learner node's): records in, rows and learning out
+        self.episodes = EpisodeStream(self.modules, params, condition, 0, whole=True)
+        self.learner = self.episodes.learner
         self.rng = rng
         #: the module whose state the place-selection map sets at each pose (an ``at_pose``
         #: hook: the place module), or None
@@ -116,20 +121,22 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
         diagnostics (``{key}_{module}``).
     """
     deciders, names = agent.deciders, agent.names
-    selector, buffer = agent.selector, agent.buffer
+    selector, episodes = agent.selector, agent.episodes
     dt = sim.params.episode.dt
-    every = [max(1, int(round(d.module.period / dt))) for d in deciders]
+    stream = agent.stream
+    if stream.clock is None or stream.clock.dt != dt:
+        stream.clock = DecisionClock([d.module.period for d in deciders], dt)
+    clock = stream.clock
     # the modules due at tick k are schedule[k % cycle] (cycle: the periods' common multiple)
-    cycle = math.lcm(*every)
-    schedule = [[d for d, n in zip(deciders, every) if k % n == 0] for k in range(cycle)]
-    # ticks from tick k to the next one at which a module is due (tick 0 has them all)
-    gaps = [next(j for j in range(1, cycle + 1) if schedule[(k + j) % cycle])
-            for k in range(cycle)]
+    cycle, gaps = clock.cycle, clock.gaps
+    schedule = [[deciders[i] for i in due] for due in clock.schedule]
     sim.reset(start=start, heading=heading)
     for d in deciders:
         d.reset()
     localizing = [d for d in deciders if d.tracks_motion]
     selector.begin_episode(0.0)
+    stream.begin_episode()
+    episodes.start(0.0, 0, start if isinstance(start, str) else 'pose', dt)
     u_exec = np.zeros(2)
     # the acting module's features at the other modules' instants (learner.behaviour_state)
     observe = (agent.params.learner.behaviour_state == 'resampled'
@@ -141,31 +148,34 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
             t = k * dt
             # the sensors the modules read (Simulator.observe's values, no Observation made)
             percept = Percept(t, *sim.sense_all())
+            stream.instant(k)                 # the draws of the instant (AgentStream)
             proposals = [d.decide(percept) for d in due]
             for p in proposals:
-                buffer.add_decision(p.module, p.t, p.b)
+                episodes.proposal(p)
             cmd = selector.on_proposals(proposals, t)
             if cmd is not None:
                 u_exec = cmd.u_exec
+                if cmd.drawn:
+                    episodes.selection(t, dict(zip(names, selector.probs)),
+                                       dict(zip(names, selector.values)))
                 if cmd.module >= 0:
-                    buffer.add_action(cmd.t, cmd.u, names[cmd.module])
+                    episodes.action(cmd.t, cmd.u, names[cmd.module])
             acting = deciders[selector.acting] if observe and selector.acting >= 0 else None
             if acting is not None and acting not in due:
                 # (6): the behaviour's state at this decision instant of another module
-                buffer.add_observation(acting.name, t, acting.observe(percept))
+                episodes.observation(acting.name, t, acting.observe(percept))
         # the command held until the next decision, or up to a reward or the episode's end
         res, wheels = sim.hold(u_exec, gaps[k % cycle])
         k += res.steps
         if res.reward != 0.0:
-            buffer.add_reward(k * dt, res.reward)      # stamped at the end of the tick
+            episodes.reward(k * dt, res.reward)        # stamped at the end of the tick
         for d in localizing:
             d.on_wheel_steps(wheels, dt)
         if res.done:
             break
-    memory = buffer.cut(0.0, k * dt, res.reached, agent.memory)
-    diag = agent.learner.learn(memory, update=learn) if learn else {}
-    return episode_row(memory, names, selector.start_probs, selector.start_values, diag,
-                       start if isinstance(start, str) else 'pose')
+    stream.end_episode(k)
+    episodes.end(k * dt, 0, 'reached' if res.reached else 'timeout')
+    return episodes.close(learn=learn).core
 
 
 def place_selection_map(agent: Agent, sim: Simulator, resolution: float = 0.1) -> dict | None:
@@ -306,6 +316,13 @@ class JobResult:
     eval_curve: list[dict] = field(default_factory=list)
     solo: dict = field(default_factory=dict)
 
+    def table_episodes(self) -> list[dict]:
+        """The learning episodes as ``episodes.csv`` shows them: numbered from 1, the n-th
+        learning episode n, as ``clis run``'s ``episodes.csv``, the bags' episode events and
+        the checkpoints count them (docs/design.md §6). :attr:`episodes` keeps the index from
+        0 that the saved runs (and the golden digest of test_coop) have always had."""
+        return [{**row, 'episode': int(row['episode']) + 1} for row in self.episodes]
+
     def eval_success_curve(self) -> list[float]:
         """Successes out of ``n`` evaluation episodes (A-E, learning off) at each evaluation
         point (after 0, ``eval_every``, ... learning episodes); empty without periodic
@@ -421,15 +438,11 @@ class _SwappedRng:
         self.agent, self.rng = agent, rng
 
     def __enter__(self) -> None:
-        self.saved = ([d.rng for d in self.agent.deciders], self.agent.selector.arbiter.rng)
-        for d in self.agent.deciders:
-            d.rng = self.rng
-        self.agent.selector.arbiter.rng = self.rng
+        self.saved = self.agent.stream.rng
+        self.agent.stream.rng = self.rng
 
     def __exit__(self, *exc: Any) -> None:
-        for d, r in zip(self.agent.deciders, self.saved[0]):
-            d.rng = r
-        self.agent.selector.arbiter.rng = self.saved[1]
+        self.agent.stream.rng = self.saved
 
 
 def evaluate(agent: Agent, arena: Arena, sim_params: SimParams, seed: int, point: int,

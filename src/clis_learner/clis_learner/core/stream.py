@@ -13,6 +13,11 @@ the bag. Either way the same records give the same parameters.
 An episode is learned only if the stream holds it from its start: its first reward arrived
 within the shortest decision period after the start (the learner came up late, or was
 restarted, otherwise).
+
+It is the one episode assembly of the project: the headless runner feeds it too, directly
+(``whole=True``: every record of every episode, rewards only where they are not 0), and takes
+the same row (:attr:`Closed.core`) from it; the learner node feeds it from its topics and
+``clis learn`` from a bag, both through :func:`clis_learner.stream_topics.feed`.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from typing import Any
 
 from clis_modules.core.modules import ModuleCore
 from clis_modules.core.proposal import Proposal
+from cr_sim.core.instants import DecisionClock
 import numpy as np
 
 from clis_learner.core.config import ClisParams
@@ -47,6 +53,8 @@ class Closed:
     t_end: float
     episode: int
     sim_return: float = math.nan
+    #: the row of :func:`~clis_learner.core.episodes.episode_row` alone (the runner's)
+    core: dict[str, Any] | None = None
 
 
 class EpisodeStream:
@@ -63,14 +71,22 @@ class EpisodeStream:
         For the rows.
     version : int
         Episodes learned so far (a resumed checkpoint's).
+    dt : float
+        The simulator's tick [s] (the decision instants are counted in ticks; a start event
+        may say another: :meth:`start`).
+    whole : bool
+        Every record of every episode is fed (the headless runner): every episode is held from
+        its start, whatever its first reward.
     """
 
     def __init__(self, modules: Sequence[ModuleCore], params: ClisParams, condition: str,
-                 seed: int, version: int = 0) -> None:
+                 seed: int, version: int = 0, dt: float = 0.05, whole: bool = False) -> None:
+        self.whole = whole
         self.modules = list(modules)
         self.names = [m.name for m in self.modules]
         self.condition, self.seed, self.version = condition, seed, int(version)
         self.min_period = min(m.period for m in self.modules)
+        self.clock = DecisionClock([m.period for m in self.modules], dt)
         self.learner = Learner(self.modules, params)
         self.buffer = StreamBuffer(self.names)
         self.memory = EpisodeMemory(self.names)
@@ -108,15 +124,23 @@ class EpisodeStream:
         self.draws.append((t, [probs.get(n, math.nan) for n in self.names],
                            [values.get(n, math.nan) for n in self.names]))
 
+    def observation(self, module: str, t: float, b: np.ndarray) -> None:
+        """Module ``module``'s features at ``t``, an instant at which it did not decide
+        (:meth:`~clis_learner.core.memory.StreamBuffer.add_observation`)."""
+        self.buffer.add_observation(module, t, b)
+
     def reward(self, t: float, r: float) -> None:
         """The reward of the step that ended at ``t``."""
         self.first_reward_t = min(self.first_reward_t, t)
         self.reward_t = max(self.reward_t, t)
         self.buffer.add_reward(t, r)
 
-    def start(self, t: float, index: int, start: str) -> Closed | None:
-        """Episode ``index`` started at ``t``; an ended episode still open is closed first."""
+    def start(self, t: float, index: int, start: str, dt: float | None = None) -> Closed | None:
+        """Episode ``index`` started at ``t`` (on ticks of ``dt``; None: as before); an ended
+        episode still open is closed first."""
         closed = self.close() if self.closing is not None else None
+        if dt is not None and dt != self.clock.dt:
+            self.clock = DecisionClock([m.period for m in self.modules], dt)
         self.episode = {'index': index, 't0': t, 'start': start, 'stale': 0}
         return closed
 
@@ -155,18 +179,23 @@ class EpisodeStream:
         missing = [] if self.reward_t >= t_end - TIME_TOL else ['the last reward']
         if self.stop_t < t_end - TIME_TOL:
             missing.append("the arbiter's stop")
-        for m in self.modules if on_grid else ():            # real time: off the grid
-            # decisions at t_0 + l tau_i
-            last = t0 + math.floor((t_end - t0 - TIME_TOL) / m.period + 1e-9) * m.period
+        for i, m in enumerate(self.modules if on_grid else ()):  # real time: off the grid
+            # decisions at t_0 + l tau_i before t_end
+            last = self.clock.last_before(i, t_end, t0)
             if self.buffer.last_decision(m.name) < last - TIME_TOL:
                 missing.append(f'the decision of {m.name} at {last:.3f} s')
+            # its observation at the last instant of another module before t_end (the module
+            # nodes send one at every such instant)
+            obs = self.clock.last_observed(i, t_end, t0) if len(self.modules) > 1 else None
+            if obs is not None and self.buffer.last_observation(m.name) < obs - TIME_TOL:
+                missing.append(f'the observation of {m.name} at {obs:.3f} s')
         return missing
 
     # ------------------------------------------------------------------ learning
 
-    def close(self) -> Closed:
+    def close(self, learn: bool = True) -> Closed:
         """Cut the ended episode out of the buffer and learn from it (if seen from its
-        start)."""
+        start, and ``learn``: the runner's evaluation episodes are not learned)."""
         ep, c = self.episode, self.closing
         if ep is None or c is None:
             raise RuntimeError('no ended episode to close')
@@ -177,22 +206,22 @@ class EpisodeStream:
         ret = float(mem.rewards()[1].sum())
         complete = not abs(ret - c['return']) > 1e-6           # NaN: the sim did not say
         # learn only from episodes recorded from their start
-        learnable = self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
+        learnable = self.whole or self.first_reward_t <= ep['t0'] + self.min_period + TIME_TOL
+        learnable = learnable and learn
         held = self.learner.held_steps
         diag = self.learner.learn(mem) if learnable else {}
         if learnable:
             self.version += 1
-        # off-policy steps whose behaviour density was scored at the behaviour's held state:
-        # the module nodes publish no observations between their decisions (yet), so with
-        # learner.behaviour_state = resampled the graph's Async episodes fall back to 'held'
+        # off-policy steps whose behaviour density was scored at the behaviour's held state
+        # (with learner.behaviour_state = resampled: an observation that did not arrive)
         held = self.learner.held_steps - held
+        core = episode_row(mem, self.names, probs, values, diag, ep['start'])
         row = {'label': self.condition, 'condition': self.condition, 'seed': self.seed,
-               'phase': 'train', 'episode': ep['index'],
-               **episode_row(mem, self.names, probs, values, diag, ep['start']),
+               'phase': 'train', 'episode': ep['index'], **core,
                'event': c['event'], 'learned': int(learnable), 'version': self.version,
                'stale_decisions': ep['stale'], 'complete': int(complete), 't_end': c['t_end'],
                'held_steps': held}
-        return Closed(row, learnable, c['t_end'], ep['index'], c['return'])
+        return Closed(row, learnable, c['t_end'], ep['index'], c['return'], core)
 
     def _first_draw(self, t0: float, t_end: float) -> tuple[list | None, list | None]:
         """``Pr(i | x)`` and values of the episode's first draw (None if none arrived)."""

@@ -7,9 +7,10 @@ instant ``t`` once every module whose decision is due at ``t`` has proposed on t
 in the headless runner, and the command in force is sent stamped ``t``.
 
 Due at ``t``: module i decides at ``t_0 + l tau_i`` (its timer is aligned to the episode start,
-as in the headless runner). A module that does not deliver within ``timeout`` wall seconds (it
-died, or is restarting) is *missing*: no instant waits for it until it proposes again. Pure:
-wall times are passed in.
+as in the headless runner), in integer ticks of the simulator
+(:class:`~cr_sim.core.instants.DecisionClock`). A module that does not deliver within
+``timeout`` wall seconds (it died, or is restarting) is *missing*: no instant waits for it
+until it proposes again. Pure: wall times are passed in.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 import math
 
+from cr_sim.core.instants import TOL, DecisionClock
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -25,7 +27,9 @@ from clis_modules.core.proposal import Proposal
 __all__ = ['TickBarrier']
 
 #: Two stamps closer than this [s] are the same instant.
-_TOL = 1e-6
+_TOL = TOL
+#: The simulator's tick [s] until :meth:`TickBarrier.begin_episode` says another.
+DEFAULT_DT = 0.05
 
 
 class TickBarrier:
@@ -39,12 +43,16 @@ class TickBarrier:
         Decision periods ``tau_i`` [s].
     timeout : float
         Wall seconds an instant waits for a due decision before the module counts as missing.
+    dt : float
+        The simulator's tick [s].
     """
 
-    def __init__(self, names: Sequence[str], periods: ArrayLike, timeout: float) -> None:
+    def __init__(self, names: Sequence[str], periods: ArrayLike, timeout: float,
+                 dt: float = DEFAULT_DT) -> None:
         self.names = tuple(names)
         self.index = {n: i for i, n in enumerate(self.names)}
         self.periods = np.asarray(periods, dtype=np.float64)
+        self.clock = DecisionClock(self.periods.tolist(), dt)
         self.timeout = float(timeout)
         self.running = False
         self.t0 = -math.inf
@@ -54,8 +62,11 @@ class TickBarrier:
         self.open: list[tuple[float, float]] = []         # (instant, wall deadline)
         self.reached = -math.inf                          # the newest instant opened
 
-    def begin_episode(self, t0: float) -> None:
-        """An episode starts at ``t0``: instants before it are answered by nobody."""
+    def begin_episode(self, t0: float, dt: float | None = None) -> None:
+        """An episode starts at ``t0`` (on ticks of ``dt``; None: as before): instants before
+        it are answered by nobody."""
+        if dt is not None and dt != self.clock.dt:
+            self.clock = DecisionClock(self.periods.tolist(), dt)
         self.running, self.t0 = True, float(t0)
         self.open = [(t, d) for t, d in self.open if t >= t0 - _TOL]
         self.inbox = [p for p in self.inbox if p.t >= t0 - _TOL]
@@ -74,10 +85,9 @@ class TickBarrier:
         """Whether ``t`` is a decision instant ``t_0 + l tau_i`` of the running episode for
         some module (missing or not): the instants a simulator in lockstep holds its clock at
         (between two, the command cannot change and nobody waits for it)."""
-        if not self.running or t < self.t0 - _TOL:
+        if not self.running:
             return False
-        steps = (t - self.t0) / self.periods
-        return bool((np.abs(steps - np.round(steps)) * self.periods <= _TOL).any())
+        return self.clock.is_instant(t, self.t0)
 
     def on_proposal(self, p: Proposal) -> bool:
         """Take a proposal; False (ignored) for a copy or an older one of the same module
@@ -102,8 +112,7 @@ class TickBarrier:
     def due(self, t: float) -> np.ndarray:
         """Modules whose decision is due at ``t`` and not missing, shape (N,), bool."""
         # decisions at t_0 + l tau_i
-        steps = (t - self.t0) / self.periods
-        due = (np.abs(steps - np.round(steps)) * self.periods <= _TOL) & (steps > -_TOL)
+        due = np.array(self.clock.due(t, self.t0), dtype=bool)
         for i in self.missing:
             due[i] = False
         return due

@@ -33,10 +33,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+from cr_sim.core.instants import TOL, DecisionClock
+
 __all__ = ['EpisodeGate']
 
 #: Two stamps closer than this [s] are the same instant.
-_TOL = 1e-6
+_TOL = TOL
 
 
 @dataclass
@@ -57,6 +59,9 @@ class EpisodeGate:
         instant.
     graph_timeout : float
         Graph gate: wall seconds to wait for the subscribers before the first episode.
+    dt : float
+        The simulator's tick [s]: the instants of ``hold_periods`` are counted in ticks
+        (:class:`~cr_sim.core.instants.DecisionClock`).
 
     Attributes
     ----------
@@ -77,8 +82,11 @@ class EpisodeGate:
     resend_period: float = 0.2
     hold_periods: tuple[float, ...] = ()
     graph_timeout: float = 30.0
+    dt: float = 0.05
 
     def __post_init__(self) -> None:
+        self.clock = (DecisionClock(self.hold_periods, self.dt)
+                      if self.hold_periods and 0.0 not in self.hold_periods else None)
         self.state = 'run'
         self.learned = (-1, 0)
         self.episode = 0                 # the episode waited for ('learner') or running
@@ -118,14 +126,10 @@ class EpisodeGate:
 
     def holds_at(self, t: float) -> bool:
         """Whether lockstep holds the clock at instant ``t`` (a decision instant)."""
-        if not self.hold_periods or not math.isfinite(self.t0) or 0.0 in self.hold_periods:
+        if self.clock is None or not math.isfinite(self.t0):
             return True
-        for tau in self.hold_periods:
-            # decisions at t_0 + l tau_i
-            steps = (t - self.t0) / tau
-            if abs(steps - round(steps)) * tau <= _TOL:
-                return True
-        return False
+        # decisions at t_0 + l tau_i
+        return self.clock.is_instant(t, self.t0)
 
     def published(self, t: float, now: float) -> None:
         """The readings of sim time ``t`` were published at wall time ``now``."""

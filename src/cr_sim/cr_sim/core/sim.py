@@ -252,6 +252,8 @@ class Simulator:
             self._noise_rng = rng.spawn(1)[0]
         except (TypeError, AttributeError):   # a generator without a SeedSequence
             self._noise_rng = np.random.default_rng(int(rng.integers(2**63)))
+        self._noise_state0 = self._noise_rng.bit_generator.state
+        self._noise_rows = 0                  # observations' noise drawn since then
 
         rp, sp, ep = params.robot, params.sensors, params.episode
         self._r = rp.radius
@@ -412,7 +414,34 @@ class Simulator:
             self._noise_rng = np.random.default_rng(int(rng.integers(2**63)))
         self._noise_block = np.empty((0, self._n_rays))
         self._noise_pos = 0
+        self._noise_state0 = self._noise_rng.bit_generator.state
+        self._noise_rows = 0
         self._tick += 1                        # the observation made before: drawn then
+
+    def random_state(self) -> dict:
+        """Where the simulator's random streams stand (plain JSON): its generator's state and
+        the number of observations' noise drawn (the noise generator is a child of it, drawn a
+        block at a time: :meth:`set_random_state` draws those blocks again). With
+        :meth:`carried`, what a run needs to go on in another process exactly as in this one
+        (the sim node, ``clis run --resume``)."""
+        return {'rng': self._rng.bit_generator.state, 'noise_rows': self._noise_rows}
+
+    def set_random_state(self, state: dict) -> None:
+        """Continue from :meth:`random_state` of a simulator built with the same generator
+        seed (its noise generator starts where this one's started)."""
+        self._rng.bit_generator.state = state['rng']
+        rows = int(state['noise_rows'])
+        self._noise_rng.bit_generator.state = self._noise_state0
+        self._noise_block = np.empty((0, self._n_rays))
+        self._noise_pos = 0
+        if rows > 0:
+            blocks = -(-rows // _NOISE_BLOCK)
+            for _ in range(blocks):
+                block = self._noise_rng.standard_normal((_NOISE_BLOCK, self._n_rays))
+            self._noise_block = block * self._sigmas
+            self._noise_pos = rows - (blocks - 1) * _NOISE_BLOCK
+        self._noise_rows = rows
+        self._tick += 1
 
     def carried(self) -> tuple[float, ...]:
         """What the next :meth:`reset` (``'wander'``) starts from: ``(x, y, theta, v_left,
@@ -484,6 +513,8 @@ class Simulator:
                 self._dest[1], self._goal_r2)
         w._steer, w._turn, w._last_v = (float(v) for v in state)
         self._noise_pos = int(pos[0])
+        if self._noisy:
+            self._noise_rows += k_end - k      # one observation per tick of the loop
         self._tick += k_end - k
         return self._x, self._y, self._th
 
@@ -591,6 +622,7 @@ class Simulator:
                                      * self._sigmas)
                 self._noise_pos = 0
             self._noise_pos += 1
+            self._noise_rows += 1
             return self._noise_block[self._noise_pos - 1]
         return self._no_noise
 

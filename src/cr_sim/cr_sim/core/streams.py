@@ -1,0 +1,124 @@
+"""The agent's random stream: one generator, in the headless runner's call order, replayed by
+every process of the graph that needs it (docs/design.md §6, "Random streams").
+
+The headless runner draws every decision and every selection of a run from ONE generator
+``default_rng([seed, 2])`` (the *agent stream*), in the order its loop makes them: at each tick
+``k`` of an episode at which modules are due (:class:`~cr_sim.core.instants.DecisionClock`),
+two standard normals for each due module's proposal, in module order
+(:meth:`clis_modules.core.decider.Decider.decide`), then one uniform for the arbiter's
+selection (:class:`clis_modules.core.arbiter.Arbiter`) if it draws at ``k``: at the episode's
+first instant (``k = 0``, where every module is due), and at every instant in ``decision``
+mode. The episodes follow each other on the same generator.
+
+What each call consumes of the generator depends only on the generator (not on the module's
+state, features or parameters: ``standard_normal(2)`` whatever the width ``sigma`` or
+``sigma_blind`` it is scaled by afterwards; one ``random()`` per selection, whatever the number
+of available modules, one included). So the sequence of calls is fixed by the decision
+instants and the episodes' lengths alone, and any process can make it: a module node, or the
+arbiter node, makes every call of the run in that order and keeps its own draws
+(:meth:`AgentStream.instant`; :mod:`clis_modules.core.streams`), and gets, bit for bit, the
+numbers the runner's module (or arbiter) gets. The runner draws through the same object. The
+simulator node makes the calls of each ended episode too (:meth:`AgentStream.end_episode`),
+and announces the stream's state at each episode start (``agent_state``), so that a module
+restarted mid-run, or a resumed run, goes on where the stream stands.
+
+An episode that ends at tick ``k_end`` has its instants ``k < k_end`` (the runner does not
+decide at the tick the episode ends on). A node may have decided at ``k_end`` before it heard
+of the end: :meth:`AgentStream.end_episode` rewinds to the episode's start and replays exactly
+the instants before ``k_end``.
+
+Here in ``cr_sim`` (not with the modules) because the simulator node keeps it too, and
+``cr_sim`` depends on no CLIS package.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from cr_sim.core.instants import DecisionClock
+
+__all__ = ['ACTION_DRAWS', 'AgentStream']
+
+#: Standard normals of one proposal (the action u = (v_left, v_right)).
+ACTION_DRAWS = 2
+
+
+class AgentStream:
+    """The agent stream of a run (module docstring).
+
+    Parameters
+    ----------
+    rng : np.random.Generator
+        The agent generator (``default_rng([seed, 2])``).
+    n : int
+        Number of modules.
+    selection : str
+        ``arbiter.selection``: ``episode`` (one draw at ``k = 0``) or ``decision`` (one at
+        every instant).
+    clock : DecisionClock, optional
+        The condition's decision instants (set :attr:`clock` before the first episode).
+    fallback : np.random.Generator, optional
+        A selection off the runner's instants (a node's arbiter after a timeout or a stale
+        module: the graph is no longer the runner's then) draws from it; None: that is an
+        error.
+    """
+
+    def __init__(self, rng: np.random.Generator, n: int, selection: str,
+                 clock: DecisionClock | None = None,
+                 fallback: np.random.Generator | None = None) -> None:
+        self.rng = rng
+        self.clock = clock
+        self.selection = selection
+        self.fallback = fallback
+        self.normals = [np.zeros(ACTION_DRAWS) for _ in range(n)]
+        self.uniform = math.nan
+        self.pos = 0                           # the next tick to draw for
+        self.start_state = rng.bit_generator.state
+
+    def begin_episode(self) -> None:
+        """An episode starts: its tick 0 is next."""
+        self.pos = 0
+        self.start_state = self.rng.bit_generator.state
+
+    def _draw(self, k: int) -> None:
+        due = self.clock.due_at(k)
+        if not due:
+            return
+        rng = self.rng
+        for i in due:
+            self.normals[i] = rng.standard_normal(ACTION_DRAWS)
+        if k == 0 or self.selection == 'decision':
+            self.uniform = rng.random()
+
+    def instant(self, k: int) -> None:
+        """Make the draws of every instant up to tick ``k`` (those before it are passed over,
+        those of ``k`` are kept: :attr:`normals` of the due modules, :attr:`uniform`). A tick
+        already drawn for keeps its draws."""
+        if k < self.pos:
+            return
+        for j in range(self.pos, k + 1):
+            self._draw(j)
+        self.pos = k + 1
+
+    def end_episode(self, k_end: int) -> None:
+        """The episode ended at tick ``k_end``: the generator stands after the draws of its
+        instants ``k < k_end``, and no others."""
+        if self.pos > k_end:                   # drew at or past the end: replay from its start
+            self.rng.bit_generator.state = self.start_state
+            self.pos = 0
+        for j in range(self.pos, k_end):
+            self._draw(j)
+        self.pos = 0
+        self.start_state = self.rng.bit_generator.state
+
+    def state(self) -> str:
+        """The generator's state between episodes, as text (:meth:`set_state`)."""
+        return json.dumps(self.start_state, sort_keys=True)
+
+    def set_state(self, text: str) -> None:
+        """Continue from :meth:`state` (a resumed run)."""
+        self.rng.bit_generator.state = json.loads(text)
+        self.begin_episode()
