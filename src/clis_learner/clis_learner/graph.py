@@ -802,16 +802,11 @@ def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
 
     rclpy.init(args=['clis_run', '--ros-args', '--disable-rosout-logs'],
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    # a Ctrl-C since the command started (clis_learner.ctrl_c) counts, even one whose
-    # KeyboardInterrupt was swallowed where it was raised
-    interrupted = [True] if ctrl_c.interrupted() else []
-
-    def stop(signum: int, frame: Any) -> None:
-        interrupted.append(True)
-        ctrl_c.remember(signum)
-
-    old = signal.signal(signal.SIGINT, stop)
-    signal.signal(signal.SIGTERM, stop)
+    # SIGINT/SIGTERM remembered (clis_learner.ctrl_c); a Ctrl-C since the command started
+    # counts too, even one whose KeyboardInterrupt was swallowed where it was raised
+    interrupted = ctrl_c.interrupted
+    old = signal.signal(signal.SIGINT, lambda signum, _: ctrl_c.remember(signum))
+    signal.signal(signal.SIGTERM, lambda signum, _: ctrl_c.remember(signum))
     sup = Supervisor(plan, out, args.params, args.max_restarts, say)
     monitor = Monitor()
     code = EXIT_OK
@@ -821,7 +816,7 @@ def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
             sup.start(child)
         deadline = time.monotonic() + args.startup_timeout
         missing = monitor.up([c.name for c in graph])
-        while missing and not interrupted:
+        while missing and not interrupted():
             if (code := sup.check()) is not None:
                 return code
             if time.monotonic() > deadline:
@@ -834,13 +829,13 @@ def _run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
             if child not in graph:
                 sup.start(child)
         view = ProgressView(args.episodes, args.block, args.quiet, tty, args.time_limit)
-        while not interrupted:
+        while not interrupted():
             monitor.spin(0.1)
             if (code := sup.check()) is not None:
                 return code
             if view.update(monitor.rows):
                 break
-        if interrupted:
+        if interrupted():
             code = EXIT_INTERRUPTED
             say('clis run: interrupted, stopping the graph')
         else:
