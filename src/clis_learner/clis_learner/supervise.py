@@ -16,7 +16,6 @@ from pathlib import Path
 import signal
 import subprocess
 import time
-from typing import Any
 
 from clis_learner import ctrl_c
 from clis_learner.graph_plan import Child, GraphPlan
@@ -127,16 +126,11 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
 
     rclpy.init(args=['clis_run', '--ros-args', '--disable-rosout-logs'],
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    # a Ctrl-C since the command started (clis_learner.ctrl_c) counts, even one whose
-    # KeyboardInterrupt was swallowed where it was raised
-    interrupted = [True] if ctrl_c.interrupted() else []
-
-    def stop(signum: int, frame: Any) -> None:
-        interrupted.append(True)
-        ctrl_c.remember(signum)
-
-    old = signal.signal(signal.SIGINT, stop)
-    signal.signal(signal.SIGTERM, stop)
+    # SIGINT/SIGTERM remembered (clis_learner.ctrl_c); a Ctrl-C since the command started
+    # counts too, even one whose KeyboardInterrupt was swallowed where it was raised
+    interrupted = ctrl_c.interrupted
+    old = signal.signal(signal.SIGINT, lambda signum, _: ctrl_c.remember(signum))
+    signal.signal(signal.SIGTERM, lambda signum, _: ctrl_c.remember(signum))
     sup = Supervisor(plan, out, args.params, args.max_restarts, say)
     monitor = Monitor()
     code = EXIT_OK
@@ -146,7 +140,7 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
             sup.start(child)
         deadline = time.monotonic() + args.startup_timeout
         missing = monitor.up([c.name for c in graph])
-        while missing and not interrupted:
+        while missing and not interrupted():
             if (code := sup.check()) is not None:
                 return code
             if time.monotonic() > deadline:
@@ -159,13 +153,13 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
             if child not in graph:
                 sup.start(child)
         view = ProgressView(args.episodes, args.block, args.quiet, tty, args.time_limit)
-        while not interrupted:
+        while not interrupted():
             monitor.spin(0.1)
             if (code := sup.check()) is not None:
                 return code
             if view.update(monitor.rows):
                 break
-        if interrupted:
+        if interrupted():
             code = EXIT_INTERRUPTED
             say('clis run: interrupted, stopping the graph')
         else:
