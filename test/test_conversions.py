@@ -106,3 +106,29 @@ def test_sensor_and_reward_messages_are_the_hand_computed_ones():
     assert ev.status[0].message == 'reached'
     assert [(kv.key, kv.value) for kv in ev.status[0].values] == [('episode', '3')]
     assert (ev.header.stamp.sec, ev.header.stamp.nanosec) == (7, 250_000_000)
+
+
+def test_wheels_cmd_carries_the_wheels_exactly_and_a_bad_one_is_refused():
+    """``wheels_cmd`` gives back the decided wheels to the bit; ``cmd_vel``'s (v, w) only to
+    rounding (the pair below is one an arbiter sent under ``clis run``)."""
+    u = [-0.008943322709441679, 0.041668905125463056]
+    msg = conv.wheels_cmd_msg(u, 1.5, 'base_link')
+    assert list(msg.name) == ['left_wheel', 'right_wheel'] and msg.header.frame_id == 'base_link'
+    assert conv.cmd_stamp(msg) == 1.5
+    assert conv.wheels_from_cmd(msg, 0.16).tolist() == u
+    twist = conv.cmd_from_wheels(u, 0.16, 1.5, 'base_link')
+    assert conv.wheels_from_cmd(twist, 0.16).tolist() != u       # why wheels_cmd exists
+    msg.velocity = [0.1]
+    with pytest.raises(ValueError, match='2 velocities'):
+        conv.wheels_from_cmd(msg, 0.16)
+
+
+def test_ir_ranges_carry_the_float64_beams_that_the_scan_rounds():
+    ir = np.array([0.1 + 1e-12, 0.5, 0.3333333333333333, 0.2, 0.25, 0.45, 0.05])
+    msg = conv.ir_ranges_msg(ir, 2.0, 'base_link')
+    assert list(msg.name) == [f'ir_{k}' for k in range(7)]
+    t, ranges = conv.ir_ranges_from_msg(msg)
+    assert t == 2.0 and ranges.tolist() == ir.tolist()
+    _, scan = conv.ir_from_msg(conv.ir_msg(ir, np.linspace(-1.5, 1.5, 7), 0.5, 2.0, 'base_link'))
+    assert scan.tolist() != ir.tolist()                          # float32 on the wire
+    assert np.array_equal(scan, ir.astype(np.float32))

@@ -10,7 +10,7 @@ import copy
 
 from clis_learner.core.config import load_clis_params
 from clis_learner.core.learner import Learner
-from clis_learner.core.memory import EpisodeMemory
+from clis_learner.core.memory import EpisodeMemory, StreamBuffer, episode_time
 from clis_learner.core.stream import EpisodeStream
 from clis_modules.core.modules import make_modules
 from clis_modules.core.proposal import Proposal
@@ -102,3 +102,23 @@ def test_episode_not_seen_from_its_start_is_not_learned_and_closing_waits():
         stream.close()
     with pytest.raises(KeyError):
         stream.action(1.0, np.zeros(2), 'place')            # not of the condition
+
+
+def test_a_cut_episode_counts_its_times_in_ticks_from_its_start():
+    """The graph's stamps (nanoseconds, absolute) become the headless simulator's ``k dt``."""
+    dt = 0.05
+    assert episode_time(20.05 + 1.2, 20.05, dt) == 24 * dt != 1.2    # 1.2000000000000002
+    assert episode_time(20.05 + 0.0123, 20.05, dt) == pytest.approx(0.0123)   # off the grid
+    assert episode_time(3.0, 1.0, 0.0) == 3.0
+    buf = StreamBuffer(['innate'])
+    t0 = 20.05
+    for k in (0, 24, 48):
+        buf.add_decision('innate', t0 + k * dt, np.ones(3))
+        buf.add_action(t0 + k * dt, np.array([0.1, 0.2]), 'innate')
+    buf.add_reward(t0 + 30 * dt, -0.1)
+    mem = buf.cut(t0, t0 + 60 * dt, False, dt=dt)
+    t, _ = mem.decisions('innate')
+    assert t.tolist() == [0.0, 24 * dt, 48 * dt]
+    assert mem.actions()[0].tolist() == [0.0, 24 * dt, 48 * dt]
+    assert mem.rewards()[0].tolist() == [30 * dt]
+    assert mem.duration == 60 * dt

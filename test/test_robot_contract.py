@@ -28,10 +28,11 @@ pytestmark = pytest.mark.ros
 SPEED = 5.0          # clock seconds per wall second
 TICK = 0.05          # config/sim.yaml episode.dt
 TIME_LIMIT = 20.0    # episode.time_limit for these tests [s]
-STREAMS = {'/clock': Clock, 'ir': LaserScan, 'camera': JointState, 'wheels': JointState,
-           'reward': Vector3Stamped, 'odom': Odometry, 'markers': MarkerArray}
-RATES = {'/clock': 20.0, 'ir': 20.0, 'camera': 20.0, 'wheels': 20.0, 'reward': 20.0,
-         'odom': 20.0, 'markers': 10.0}
+STREAMS = {'/clock': Clock, 'ir': LaserScan, 'ir_ranges': JointState, 'camera': JointState,
+           'wheels': JointState, 'reward': Vector3Stamped, 'odom': Odometry,
+           'markers': MarkerArray}
+RATES = {'/clock': 20.0, 'ir': 20.0, 'ir_ranges': 20.0, 'camera': 20.0, 'wheels': 20.0,
+         'reward': 20.0, 'odom': 20.0, 'markers': 10.0}
 
 
 def stamp(msg) -> float:
@@ -153,6 +154,13 @@ def test_topics_types_frames_and_rates(robot):
     assert scan.header.frame_id == 'base_link' and len(scan.ranges) == 7
     assert scan.angle_min == pytest.approx(-math.pi / 2) and scan.range_max == pytest.approx(0.5)
     assert all(0.0 <= r <= scan.range_max for r in scan.ranges)
+    # the same beams at full precision (what the modules read): the scan is their float32
+    full = {round(stamp(m), 6): m for m in p.msgs['ir_ranges']}
+    pairs = [(s, full[round(stamp(s), 6)]) for s in p.msgs['ir'] if round(stamp(s), 6) in full]
+    assert len(pairs) > 10, (len(pairs), len(p.msgs['ir']), len(p.msgs['ir_ranges']))
+    for s, f in pairs:
+        assert list(f.name) == [f'ir_{k}' for k in range(7)] and f.header.frame_id == 'base_link'
+        assert np.array_equal(np.asarray(f.position, np.float32), np.asarray(s.ranges)), (s, f)
     cam = p.msgs['camera'][-1]
     assert cam.header.frame_id == 'base_link'
     assert list(cam.name) == ['destination', 'L1', 'L2', 'L3', 'L4']

@@ -139,10 +139,12 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     cameras = sum('camera' in sensors[m] for m in modules)
     matched = [f'episode:{nodes}', f'/clock:{len(modules) + 2}',
                *([f'camera:{cameras}'] if cameras else []),
-               f'reward:{1 + bool(record)}', 'cmd_vel:1']
+               f'reward:{1 + bool(record)}', 'wheels_cmd:1']
     plan.children.append(Child('sim', 'cr_sim', 'sim', {
         'node.seed': seed, 'node.arena_file': arena, 'node.speed_factor': float(speed),
         'node.start_subscribers': matched,
+        # the arbiter's wheels as decided (cmd_vel's (v, w) is exact only to rounding)
+        'node.command': 'wheels_cmd',
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
         # the headless runner's readings and agent stream (docs/design.md §6)

@@ -54,6 +54,7 @@ __all__ = ['RecorderParams', 'RecorderNode', 'GRAPH_TOPICS', 'LATCHED_TOPICS', '
 GRAPH_TOPICS = {
     '/clock': 'rosgraph_msgs/msg/Clock',
     'ir': 'sensor_msgs/msg/LaserScan',
+    'ir_ranges': 'sensor_msgs/msg/JointState',
     'camera': 'sensor_msgs/msg/JointState',
     'wheels': 'sensor_msgs/msg/JointState',
     'reward': 'geometry_msgs/msg/Vector3Stamped',
@@ -62,6 +63,7 @@ GRAPH_TOPICS = {
     'arena': 'visualization_msgs/msg/MarkerArray',
     'markers': 'visualization_msgs/msg/MarkerArray',
     'cmd_vel': 'geometry_msgs/msg/TwistStamped',
+    'wheels_cmd': 'sensor_msgs/msg/JointState',
     **{f'{m}/proposal': 'sensor_msgs/msg/JointState' for m in ('innate', 'view', 'place')},
     **{f'{m}/params': 'sensor_msgs/msg/JointState' for m in ('innate', 'view', 'place')},
     'place/belief': 'nav_msgs/msg/OccupancyGrid',

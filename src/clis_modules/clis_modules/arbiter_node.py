@@ -23,7 +23,10 @@ proposal and every 10 ms of wall time, stands at it (an instant whose due module
 missing), so the arbiter is not woken at every tick.
 
 Publishes ``cmd_vel`` (geometry_msgs/TwistStamped stamped with the time of the sensor readings
-the command was decided on; plain Twist with ``arbiter_node.cmd_vel_stamped:=false``),
+the command was decided on; plain Twist with ``arbiter_node.cmd_vel_stamped:=false``) and the
+same command as ``wheels_cmd`` (sensor_msgs/JointState, the wheel velocities exactly: a robot
+taking ``node.command: wheels_cmd`` executes them without a round trip through (v, w), as the
+headless runner does),
 ``~/selection`` (every draw: the acting module in ``header.frame_id``, ``Pr(i | x)`` and the
 values) and ``~/action`` (every command: the acting module's proposal, not clipped, which the
 learner's densities are of). Layouts in :mod:`clis_modules.conversions`.
@@ -112,6 +115,9 @@ class ArbiterNode(GraphNode):
         self.pub_cmd = self.create_publisher(cmd_type, 'cmd_vel', rconv.STREAM_DEPTH)
         self.pub_selection = self.create_publisher(JointState, '~/selection', rconv.STREAM_DEPTH)
         self.pub_action = self.create_publisher(JointState, '~/action', rconv.STREAM_DEPTH)
+        # the same command as the wheels themselves (a robot taking node.command: wheels_cmd)
+        self.pub_wheels_cmd = self.create_publisher(JointState, 'wheels_cmd',
+                                                    rconv.STREAM_DEPTH)
         for name in names:
             self.create_subscription(
                 JointState, f'{name}/proposal', self._on_proposal, self.graph.proposal_qos(),
@@ -120,7 +126,7 @@ class ArbiterNode(GraphNode):
         self.create_subscription(DiagnosticArray, 'episode', self._on_episode, LATCHED)
         self.barrier = None
         self.u_exec = np.zeros(2)                    # the command in force
-        self.sent = None                             # (cmd_vel, stamp, wall time) sent last
+        self.sent = None              # (cmd_vel, stamp, wall time, wheels_cmd) sent last
         self._advancing = False
         if self.cfg.lockstep and self.sim_time:
             self.barrier = TickBarrier(names, taus, self.cfg.lockstep_timeout, self.clock.dt)
@@ -223,7 +229,8 @@ class ArbiterNode(GraphNode):
                 and now - self.sent[2] >= self.cfg.resend_period \
                 and self.now_s() <= self.sent[1] + 1e-6:
             self.pub_cmd.publish(self.sent[0])
-            self.sent = (self.sent[0], self.sent[1], now)
+            self.pub_wheels_cmd.publish(self.sent[3])
+            self.sent = (*self.sent[:2], now, self.sent[3])
         missing = set(self.barrier.missing)
         oldest = self.barrier.open[0][0] if self.barrier.open else math.nan
         answered = self.barrier.ready(now)
@@ -252,9 +259,11 @@ class ArbiterNode(GraphNode):
         self.u_exec = u_exec
         msg = rconv.cmd_from_wheels(u_exec, self.wheel_base, t, self.cfg.base_frame,
                                     self.cfg.cmd_vel_stamped)
+        wheels = rconv.wheels_cmd_msg(u_exec, t, self.cfg.base_frame)
         self.pub_cmd.publish(msg)
+        self.pub_wheels_cmd.publish(wheels)
         mark('arb_cmd', t)
-        self.sent = (msg, t, time.monotonic())
+        self.sent = (msg, t, time.monotonic(), wheels)
 
     def _publish(self, cmd: Command | None) -> None:
         if cmd is None:

@@ -57,7 +57,7 @@ from nav_msgs.msg import OccupancyGrid
 import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy, QoSProfile
-from sensor_msgs.msg import JointState, LaserScan
+from sensor_msgs.msg import JointState
 
 from clis_modules import conversions as conv
 from clis_modules.core.decider import Decider, Percept
@@ -165,7 +165,8 @@ class ModuleNode(GraphNode):
                 callback_group=self.on_demand), self._add_camera))
         if 'ir' in self.sensors or 'camera' not in self.sensors:
             self.readings.append((self.create_subscription(
-                LaserScan, 'ir', self._on_ir, READINGS_DEPTH, callback_group=self.on_demand),
+                JointState, 'ir_ranges', self._on_ir, READINGS_DEPTH,
+                callback_group=self.on_demand),
                 self._add_ir))
         if 'wheels' in self.sensors:
             self.readings.append((self.create_subscription(
@@ -190,8 +191,9 @@ class ModuleNode(GraphNode):
         lm = np.array([bearings.get(name, math.nan) for name in self.landmarks])
         self.camera.append((t, bearings.get('destination', math.nan), lm))
 
-    def _add_ir(self, msg: LaserScan) -> None:
-        t, ranges = rconv.ir_from_msg(msg)
+    def _add_ir(self, msg: JointState) -> None:
+        # the full-precision beams (``ir``'s LaserScan carries float32): the runner's percept
+        t, ranges = rconv.ir_ranges_from_msg(msg)
         self.ir.append((t, float(np.min(ranges)) if ranges.size else math.inf, ranges))
 
     def _add_wheels(self, msg: JointState) -> None:
@@ -210,7 +212,7 @@ class ModuleNode(GraphNode):
         self._add_camera(msg)
         self._try_decide()
 
-    def _on_ir(self, msg: LaserScan) -> None:
+    def _on_ir(self, msg: JointState) -> None:
         self._add_ir(msg)
         self._try_decide()
 

@@ -343,6 +343,7 @@ class BridgeNode(Node):
         t, frame = r.t, self.cfg.base_frame
         self.pub_ir.publish(conv.ir_msg(r.ir, self.ir_angles, self.params.sensors.ir_range, t,
                                         frame))
+        self.pub_ir_ranges.publish(conv.ir_ranges_msg(r.ir, t, frame))
         self.pub_camera.publish(conv.bearings_msg(
             self.blob_names, [r.dest_bearing, *r.landmark_bearings], t, frame))
         self.pub_wheels.publish(conv.wheels_msg(r.wheels, t, frame))

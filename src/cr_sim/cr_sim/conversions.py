@@ -6,7 +6,12 @@ The simulator node and the real-robot bridge publish the same interface (docs/ro
 topic         type                               content
 ============  =================================  ==================================================
 cmd_vel       geometry_msgs/TwistStamped         command in; plain Twist by parameter
+wheels_cmd    sensor_msgs/JointState             command in, the simulator's alternative to
+                                                 cmd_vel (node.command): velocity = (v_left,
+                                                 v_right) m/s, the wheels exactly as decided
 ir            sensor_msgs/LaserScan              7 IR beams, distance from the body surface (m)
+ir_ranges     sensor_msgs/JointState             the same beams at full precision: name = ir_0 ...
+                                                 (right to left), position = range (m, float64)
 camera        sensor_msgs/JointState             blob bearings: name = destination + landmarks,
                                                  position = bearing rad (NaN = not seen)
 wheels        sensor_msgs/JointState             executed wheel velocities (m/s), odometry input
@@ -61,16 +66,36 @@ def clock_msg(t: float) -> Clock:
     return Clock(clock=to_time(t))
 
 
-def wheels_from_cmd(msg: Twist | TwistStamped, wheel_base: float) -> np.ndarray:
-    """(v_left, v_right) in m/s from a Twist or TwistStamped command (not yet clamped)."""
+def wheels_from_cmd(msg: Twist | TwistStamped | JointState, wheel_base: float) -> np.ndarray:
+    """(v_left, v_right) in m/s from a Twist or TwistStamped command, or from a ``wheels_cmd``
+    JointState (its two velocities as sent: no round trip through (v, w), which is exact only
+    to rounding); not yet clamped.
+
+    Raises
+    ------
+    ValueError
+        A JointState without exactly two velocities.
+    """
+    if isinstance(msg, JointState):
+        if len(msg.velocity) != 2:
+            raise ValueError(f'wheels_cmd needs 2 velocities (v_left, v_right), got '
+                             f'{len(msg.velocity)}')
+        return np.array(msg.velocity, float)
     twist = msg.twist if isinstance(msg, TwistStamped) else msg
     return np.asarray(twist_to_wheels(twist.linear.x, twist.angular.z, wheel_base), float)
 
 
-def cmd_stamp(msg: Twist | TwistStamped) -> float | None:
-    """The stamp [s] of a TwistStamped command (the time of the readings it was decided on);
-    None for a plain Twist."""
-    return from_time(msg.header.stamp) if isinstance(msg, TwistStamped) else None
+def wheels_cmd_msg(u: Sequence[float], t: float, frame: str) -> JointState:
+    """A ``wheels_cmd`` message: the wheel velocities ``u`` = (v_left, v_right) [m/s]."""
+    msg = JointState(name=list(WHEEL_NAMES), velocity=[float(v) for v in u])
+    msg.header.stamp, msg.header.frame_id = to_time(t), frame
+    return msg
+
+
+def cmd_stamp(msg: Twist | TwistStamped | JointState) -> float | None:
+    """The stamp [s] of a TwistStamped or wheels_cmd command (the time of the readings it was
+    decided on); None for a plain Twist."""
+    return None if isinstance(msg, Twist) else from_time(msg.header.stamp)
 
 
 def cmd_from_wheels(u: Sequence[float], wheel_base: float, t: float, frame: str,
@@ -100,6 +125,20 @@ def ir_msg(ir: np.ndarray, angles: Sequence[float], ir_range: float, t: float,
 
 def ir_from_msg(msg: LaserScan) -> tuple[float, np.ndarray]:
     return from_time(msg.header.stamp), np.asarray(msg.ranges, float)
+
+
+def ir_ranges_msg(ir: np.ndarray, t: float, frame: str) -> JointState:
+    """The IR beams at full precision (LaserScan's ranges are float32): ``name`` = ``ir_0``
+    ... in the LaserScan's order, ``position`` = range [m] (float64). The modules read these,
+    so the graph's percepts are the headless runner's to the bit (docs/design.md §6)."""
+    msg = JointState(name=[f'ir_{k}' for k in range(len(ir))],
+                     position=[float(r) for r in ir])
+    msg.header.stamp, msg.header.frame_id = to_time(t), frame
+    return msg
+
+
+def ir_ranges_from_msg(msg: JointState) -> tuple[float, np.ndarray]:
+    return from_time(msg.header.stamp), np.asarray(msg.position, float)
 
 
 def bearings_msg(names: Sequence[str], bearings: Iterable[float], t: float,

@@ -18,10 +18,11 @@ __all__ = ['open_robot_interface', 'parse_counts', 'unmatched']
 
 
 def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamped: bool,
-                         wait_for_learner: bool) -> None:
+                         wait_for_learner: bool, command: str = 'cmd_vel') -> None:
     """Create the interface's publishers on ``node`` (``node.pub_clock``, ``pub_ir``,
-    ``pub_camera``, ``pub_wheels``, ``pub_reward``, ``pub_episode``, ``pub_odom``,
-    ``pub_arena``, ``pub_markers``), subscribe ``cmd_vel`` to ``node._on_cmd``
+    ``pub_ir_ranges``, ``pub_camera``, ``pub_wheels``, ``pub_reward``, ``pub_episode``,
+    ``pub_odom``, ``pub_arena``, ``pub_markers``), subscribe the ``command`` topic (``cmd_vel``, or
+    ``wheels_cmd``: the wheels as decided, sensor_msgs/JointState) to ``node._on_cmd``
     (``node.sub_cmd``), serve ``reset`` with ``node._on_reset``, follow ``learner/progress``
     with ``node._on_progress`` if ``wait_for_learner``, and publish the arena's markers
     (latched) in ``map_frame``."""
@@ -29,6 +30,7 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     node.pub_clock = node.create_publisher(conv.Clock, '/clock', 10)
     node.pub_ir = node.create_publisher(conv.LaserScan, 'ir', conv.STREAM_DEPTH)
+    node.pub_ir_ranges = node.create_publisher(conv.JointState, 'ir_ranges', conv.STREAM_DEPTH)
     node.pub_camera = node.create_publisher(conv.JointState, 'camera', conv.STREAM_DEPTH)
     node.pub_wheels = node.create_publisher(conv.JointState, 'wheels', conv.STREAM_DEPTH)
     node.pub_reward = node.create_publisher(conv.Vector3Stamped, 'reward', conv.STREAM_DEPTH)
@@ -38,8 +40,11 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
     node.pub_odom = node.create_publisher(conv.Odometry, 'odom', conv.STREAM_DEPTH)
     node.pub_arena = node.create_publisher(conv.MarkerArray, 'arena', latched)
     node.pub_markers = node.create_publisher(conv.MarkerArray, 'markers', 10)
-    cmd_type = conv.TwistStamped if cmd_vel_stamped else conv.Twist
-    node.sub_cmd = node.create_subscription(cmd_type, 'cmd_vel', node._on_cmd, 10)
+    if command == 'wheels_cmd':
+        node.sub_cmd = node.create_subscription(conv.JointState, 'wheels_cmd', node._on_cmd, 10)
+    else:
+        cmd_type = conv.TwistStamped if cmd_vel_stamped else conv.Twist
+        node.sub_cmd = node.create_subscription(cmd_type, 'cmd_vel', node._on_cmd, 10)
     node.create_service(Trigger, 'reset', node._on_reset)
     if wait_for_learner:
         node.create_subscription(conv.DiagnosticArray, 'learner/progress', node._on_progress,

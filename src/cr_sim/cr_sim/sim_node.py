@@ -69,6 +69,10 @@ class SimNodeParams:
     arena_file: str = param(doc="arena description; '' = config/arena.yaml")
     speed_factor: float = param(0.0, 1000.0, doc='sim time / wall time; 0 = as fast as possible')
     cmd_vel_stamped: bool = param(doc='cmd_vel is TwistStamped (true) or Twist (false)')
+    command: str = param(choices=('cmd_vel', 'wheels_cmd'), doc="the command input: 'cmd_vel' "
+                         "(a twist) or 'wheels_cmd' (sensor_msgs/JointState, the wheel "
+                         'velocities as decided: exact, no round trip through (v, w); what '
+                         "the arbiter sends under 'clis run')")
     watchdog: float = param(0.05, 60.0, doc='stop if no cmd_vel for this long (s, sim time)')
     start: str = param(choices=START_CHOICES, doc='where episodes start')
     auto_reset: bool = param(doc='start a new episode when one ends')
@@ -159,7 +163,7 @@ class SimNode(Node):
                                 if self.cfg.round_trip_log else None)
 
         open_robot_interface(self, self.arena, self.cfg.map_frame, self.cfg.cmd_vel_stamped,
-                             self.cfg.wait_for_learner)
+                             self.cfg.wait_for_learner, self.cfg.command)
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
         self.ir_angles = np.deg2rad(self.params.sensors.ir_angles_deg)
         try:
@@ -198,7 +202,11 @@ class SimNode(Node):
         if self.gate.lockstep and stamp and stamp < self.t_start - 1e-6:
             return                  # in lockstep: a command decided in an earlier episode
         # Clamped in the core (NaN/inf -> 0, limit): a bad command never reaches the wheels.
-        self.u = conv.wheels_from_cmd(msg, self.wheel_base)
+        try:
+            self.u = conv.wheels_from_cmd(msg, self.wheel_base)
+        except ValueError as exc:
+            self.get_logger().error(f'ignored a command: {exc}', throttle_duration_sec=2.0)
+            return
         self.u_time = self.sim.t
         held = self.gate.t
         rtt = self.gate.on_command(stamp, time.monotonic())
@@ -357,6 +365,7 @@ class SimNode(Node):
             wheels = obs.wheels
             self._last = [
                 (self.pub_ir, conv.ir_msg(obs.ir, self.ir_angles, sensors.ir_range, t, frame)),
+                (self.pub_ir_ranges, conv.ir_ranges_msg(obs.ir, t, frame)),
                 (self.pub_camera, conv.bearings_msg(
                     self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame)),
                 (self.pub_wheels, conv.wheels_msg(wheels, t, frame))]

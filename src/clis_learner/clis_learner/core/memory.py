@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['TIME_TOL', 'EpisodeMemory', 'StreamBuffer']
+__all__ = ['TIME_TOL', 'EpisodeMemory', 'StreamBuffer', 'episode_time']
 
 #: Two times closer than this [s] are the same instant.
 TIME_TOL = 1e-6
@@ -144,7 +144,7 @@ class EpisodeMemory:
     @property
     def duration(self) -> float:
         """``t_end - t_start`` [s] (``t_start`` is 0 unless the memory was cut from a
-        :class:`StreamBuffer`)."""
+        :class:`StreamBuffer` without a tick)."""
         if self.t_end is None:
             raise RuntimeError('the episode has not ended')
         return self.t_end - self.t_start
@@ -297,7 +297,7 @@ class StreamBuffer:
             _insert(self._rew, (float(t), float(r)))
 
     def cut(self, t0: float, t_end: float, reached: bool,
-            memory: EpisodeMemory | None = None) -> EpisodeMemory:
+            memory: EpisodeMemory | None = None, dt: float = 0.0) -> EpisodeMemory:
         """The episode that started at ``t0`` and ended at ``t_end`` [s], as a memory.
 
         Decisions and actions with ``t0 <= t < t_end`` and rewards with ``t0 < t <= t_end``
@@ -308,21 +308,39 @@ class StreamBuffer:
         ----------
         memory : EpisodeMemory, optional
             Cleared and filled (reused); a new one by default.
+        dt : float
+            The simulator's tick [s]; > 0: the memory's times are the episode's, ``k dt`` for a
+            record ``k`` ticks after ``t0`` (:func:`episode_time`), the headless simulator's
+            times to the bit whatever the stamps' rounding (a cubic spline through the actions
+            depends on them). 0: the times as recorded.
         """
         mem = EpisodeMemory(self.module_names) if memory is None else memory
         mem.clear()
-        mem.t_start = float(t0)
         lo, hi = t0 - TIME_TOL, t_end - TIME_TOL
+
+        def rel(t: float) -> float:
+            return episode_time(t, t0, dt)
+        mem.t_start = float(t0) if dt <= 0.0 else 0.0
         for name, items in self._dec.items():
-            mem._take_decisions(name, _take(items, lo, hi))
+            mem._take_decisions(name, [(rel(t), b) for t, b in _take(items, lo, hi)])
         for name, items in self._obs.items():
-            mem._obs[name] = _take(items, lo, hi)
+            mem._obs[name] = [(rel(t), b) for t, b in _take(items, lo, hi)]
         for t, u, who in _take(self._act, lo, hi):
-            mem.record_action(t, u, who)
+            mem.record_action(rel(t), u, who)
         for t, r in _take(self._rew, t0 + TIME_TOL, t_end + TIME_TOL):
-            mem.record_reward(t, r)
-        mem.end(t_end, reached)
+            mem.record_reward(rel(t), r)
+        mem.end(rel(t_end), reached)
         return mem
+
+
+def episode_time(t: float, t0: float, dt: float) -> float:
+    """Time ``t`` [s] of an episode that started at ``t0``, counted from its start: ``k dt``
+    when ``t`` is ``k`` ticks of ``dt`` after ``t0`` (within :data:`TIME_TOL`; the headless
+    simulator's ``k dt``, to the bit), else ``t - t0``; ``t`` itself for ``dt <= 0``."""
+    if dt <= 0.0:
+        return t
+    k = round((t - t0) / dt)
+    return k * dt if abs(t - t0 - k * dt) <= TIME_TOL else t - t0
 
 
 def _insert(items: list, item: tuple) -> None:

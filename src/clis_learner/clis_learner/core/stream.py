@@ -200,7 +200,8 @@ class EpisodeStream:
         if ep is None or c is None:
             raise RuntimeError('no ended episode to close')
         self.episode = self.closing = None
-        mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory)
+        mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory,
+                              dt=self.clock.dt)
         probs, values = self._first_draw(ep['t0'], c['t_end'])
         # every reward of the episode arrived iff they sum to the simulator's return
         ret = float(mem.rewards()[1].sum())
