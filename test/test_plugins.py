@@ -164,3 +164,15 @@ def test_graph_plan_starts_any_module_as_the_generic_node(tmp_path):
     sim = plan.by_name('sim')
     assert 'camera:2' in sim.params['node.start_subscribers']
     assert sim.params['node.lockstep_periods'] == [0.25, 0.75]
+    assert sim.params['node.command'] == 'wheels_cmd'       # the arbiter's wheels, exact
+
+
+def test_graph_plan_takes_the_periods_and_selection_of_the_params_files(tmp_path):
+    """The nodes read ``--params``; the simulator's lockstep instants and agent stream must
+    be those too (they came from config/clis.yaml alone: a period override deadlocked the
+    lockstep at instants no module decided on)."""
+    from clis_learner.graph_plan import plan_graph
+    sim = plan_graph('async:innate+wall', 0, tmp_path, 0.0, clis_overrides={
+        'wall.period': 1.0, 'arbiter.selection': 'decision'}).by_name('sim')
+    assert sim.params['node.lockstep_periods'] == [0.25, 1.0]
+    assert sim.params['node.agent_selection'] == 'decision'

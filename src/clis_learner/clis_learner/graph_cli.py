@@ -219,6 +219,8 @@ def _check_args(args: argparse.Namespace) -> str | None:
         except (ConfigError, ValueError) as exc:
             return f'--params {f}: {exc}'
         clis_keys.update(flat)
+    # the CLIS keys of the --params files: the plan (periods, selection) is theirs too
+    args.clis_overrides = {k: v for k, v in clis_keys.items() if k in _clis_keys()}
     args.first_episode, args.sim_state, args.version = 1, '', 0
     if args.resume is None:
         return None
@@ -226,8 +228,7 @@ def _check_args(args: argparse.Namespace) -> str | None:
 
     from clis_learner.core.checkpoint import CheckpointError, load_checkpoint
     from clis_learner.core.config import params_hash
-    clis = load_clis_params(overrides={k: v for k, v in clis_keys.items()
-                                       if k in _clis_keys()} or None)
+    clis = load_clis_params(overrides=args.clis_overrides or None)
     try:
         meta = load_checkpoint(args.resume, make_modules(clis, args.condition,
                                                          *arena_map(arena)),
@@ -376,7 +377,8 @@ def main(args: argparse.Namespace) -> int:
                           str(args.resume.resolve()) if args.resume else '', args.arena,
                           args.robot, args.device,
                           str(args.record.resolve()) if args.record else '', args.realtime,
-                          args.first_episode, args.sim_state, args.version + args.episodes)
+                          args.first_episode, args.sim_state, args.version + args.episodes,
+                          args.clis_overrides)
     except ValueError as exc:                        # a module no plug-in or section names
         print(f'clis run: --condition {args.condition}: {exc}', file=sys.stderr)
         return EXIT_CONFIG

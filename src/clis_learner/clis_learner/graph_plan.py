@@ -89,18 +89,21 @@ class GraphPlan:
 def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str = '',
                arena: str = '', robot: str = 'sim', device: str = 'emulator',
                record: str = '', realtime: int = 0, first_episode: int = 1,
-               resume_state: str = '', learn_until: int = 0) -> GraphPlan:
+               resume_state: str = '', learn_until: int = 0,
+               clis_overrides: dict[str, Any] | None = None) -> GraphPlan:
     """The nodes of ``condition``, with the parameters ``clis run`` gives each;
     ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
     ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
     :func:`cr_sim.ros_support.lifecycle.realtime`); ``first_episode`` > 1: the number of
     the simulator's first episode (a resumed run), ``resume_state``: where its robot and clock
     stood (the checkpoint's ``sim_state``); ``learn_until`` > 0: the learner learns no
-    episode that starts once that many are learned in all (``learner_node.episodes``)."""
+    episode that starts once that many are learned in all (``learner_node.episodes``);
+    ``clis_overrides``: the CLIS keys of the run's ``--params`` files (dotted), which the nodes
+    read too (the periods the simulator holds at, the arbiter's selection)."""
     from clis_modules.core.modules import condition_periods, condition_sensors
 
     from clis_learner.core.config import load_clis_params
-    clis = load_clis_params()
+    clis = load_clis_params(overrides=clis_overrides or None, source='--params')
     periods = condition_periods(clis, condition)
     modules = [name for name, _ in periods]
     sensors = condition_sensors(clis, condition)

@@ -154,6 +154,10 @@ class ModuleNode(GraphNode):
         self.pub_obs = (self.create_publisher(JointState, '~/observation', rconv.STREAM_DEPTH)
                         if len(listed) > 1 else None)
         self.obs_k = 0                          # the next tick of the episode to observe at
+        # the episode observed (its start; None before the first) and its end (inf while it
+        # runs): an ended episode's last observations may still wait for their readings
+        self.obs_t0: float | None = None
+        self.obs_end = math.inf
         self.pub_belief = (self.create_publisher(OccupancyGrid, '~/belief', 10)
                            if module.display is not None else None)
         # the readings of the plug-in's sensors, taken at the decision instants (docstring)
@@ -228,7 +232,13 @@ class ModuleNode(GraphNode):
         elif event in END_EVENTS:
             if self.t0 is not None and (k_end := self.clock.tick(t, self.t0)) is not None:
                 self.stream.end_episode(k_end)      # the draws of its instants before t
+            if self.t0 is not None:
+                self.obs_end = t - 2 * _TOL         # observed up to the end, not at it
             self.t0, self.due, self.ended_t = None, False, t
+            # the end event may overtake the readings of the episode's last instants (their
+            # own topics): what is in goes out now, the rest as it comes (clock, wall timer)
+            self._take_readings()
+            self._observe_pending(t)
 
     def _on_params(self, msg: JointState) -> None:
         try:
@@ -300,7 +310,7 @@ class ModuleNode(GraphNode):
     def _on_wall(self) -> None:
         now = time.monotonic()
         self._take_readings()                   # the queues stay short between decisions
-        if not self.due and self.t0 is not None:
+        if not self.due and self.obs_t0 is not None:
             self._observe_pending(self.now_s())
         if self.due:
             # a due decision waits for readings, and the executor runs the timers of a wakeup
@@ -364,6 +374,7 @@ class ModuleNode(GraphNode):
         self.wait_until = time.monotonic() + self.cfg.params_timeout
         self.wheels_t = t0
         self.obs_k = 0
+        self.obs_t0, self.obs_end = t0, math.inf
         self.timer.reset()
         self.marked = -math.inf
         if not self.sim_time:
@@ -453,10 +464,11 @@ class ModuleNode(GraphNode):
         (:meth:`Decider.observe`: no draw, its state untouched) on ``~/observation``, in
         order, once that instant's readings are in (the headless runner records the acting
         module's; the learner uses those of the module that acted)."""
-        if self.pub_obs is None or not self.sim_time or self.t0 is None:
+        if self.pub_obs is None or not self.sim_time or self.obs_t0 is None:
             return
         dt = self.clock.dt
-        while (tj := self.t0 + self.obs_k * dt) <= limit + _TOL:
+        limit = min(limit, self.obs_end)        # an ended episode: up to its end
+        while (tj := self.obs_t0 + self.obs_k * dt) <= limit + _TOL:
             due = self.clock.due_at(self.obs_k)
             if self.index in due and tj > self.last_t + _TOL:
                 return                          # its own decision first

@@ -158,13 +158,6 @@ class BridgeNode(Node):
                                       'stopped', throttle_duration_sec=1.0)
         self._send_wheels(self.now(), force=True)
 
-    def _on_progress(self, msg) -> None:
-        _, _, values = conv.event_from_msg(msg)
-        try:
-            self.gate.on_progress(int(values['episode']), int(values['version']))
-        except (KeyError, ValueError):
-            self.get_logger().warning(f'unreadable learner progress: {values}')
-
     def _on_reset(self, request, response):
         ev = self.episodes.end(self.t, self.now(), 'service')
         if ev is not None:

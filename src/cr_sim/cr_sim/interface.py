@@ -24,7 +24,7 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
     ``pub_odom``, ``pub_arena``, ``pub_markers``), subscribe the ``command`` topic (``cmd_vel``, or
     ``wheels_cmd``: the wheels as decided, sensor_msgs/JointState) to ``node._on_cmd``
     (``node.sub_cmd``), serve ``reset`` with ``node._on_reset``, follow ``learner/progress``
-    with ``node._on_progress`` if ``wait_for_learner``, and publish the arena's markers
+    into ``node.gate.on_progress`` if ``wait_for_learner``, and publish the arena's markers
     (latched) in ``map_frame``."""
     from std_srvs.srv import Trigger
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -47,12 +47,22 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
         node.sub_cmd = node.create_subscription(cmd_type, 'cmd_vel', node._on_cmd, 10)
     node.create_service(Trigger, 'reset', node._on_reset)
     if wait_for_learner:
-        node.create_subscription(conv.DiagnosticArray, 'learner/progress', node._on_progress,
+        node.create_subscription(conv.DiagnosticArray, 'learner/progress',
+                                 lambda msg: _on_progress(node, msg),
                                  QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
     node.pub_arena.publish(conv.arena_markers(
         arena.wall_boxes(), arena.short_boxes(), arena.tall_boxes(),
         [(lm.x, lm.y) for lm in arena.landmarks],
         (arena.destination.x, arena.destination.y, arena.destination.goal_radius), map_frame))
+
+
+def _on_progress(node: Node, msg) -> None:
+    """The learner's progress (episode learned, parameters' version) to the node's gate."""
+    _, _, values = conv.event_from_msg(msg)
+    try:
+        node.gate.on_progress(int(values['episode']), int(values['version']))
+    except (KeyError, ValueError):
+        node.get_logger().warning(f'unreadable learner progress: {values}')
 
 
 def parse_counts(entries: tuple[str, ...], where: str) -> dict[str, int]:

@@ -215,13 +215,6 @@ class SimNode(Node):
             if self._round_trip_log is not None:
                 self._round_trip_log.write(f'{held:.6f} {rtt * 1e3:.4f}\n')
 
-    def _on_progress(self, msg) -> None:
-        _, _, values = conv.event_from_msg(msg)
-        try:
-            self.gate.on_progress(int(values['episode']), int(values['version']))
-        except (KeyError, ValueError):
-            self.get_logger().warning(f'unreadable learner progress: {values}')
-
     def _on_reset(self, request, response):
         self.gate.state = 'run'
         self._end_episode('reset')
