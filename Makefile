@@ -91,7 +91,7 @@ run: setup
 	  $(if $(RECORD),--record $(RECORD)) $(RUN_ARGS)
 
 lint: setup
-	$(VENV)/bin/ruff check src test bench
+	$(VENV)/bin/ruff check src test bench tools
 
 # The suite on TEST_WORKERS pytest-xdist workers (each with its own ROS_DOMAIN_ID, test/
 # conftest.py; tests that share a module fixture stay on one worker: --dist loadscope). Every

@@ -4,6 +4,7 @@ steps), hand-computed; the periodic evaluation (Fig. 3a) and the presets."""
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 
@@ -284,59 +285,67 @@ def test_experiment_preset_and_ablation_flags(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------ paper preset
 
-#: SHA-256 of the episode rows of the runs below, made with the code before issue 9 (commit
-#: 7597987): the project's rules of before the paper preset was made literal (the step of (9)
-#: on the dimensionless W, the behaviour's density at its held state) must still give
-#: bit-identical results as the named options ``policy_step = dimensionless`` and
-#: ``behaviour_state = held``, with every other option at its paper value (the diagnostics
-#: added since, ``grow_share`` and ``c_max``, left out). The last bits of a run depend on the
-#: CPU's vector instructions (numpy's and numba's exp, log and reductions differ between
-#: AVX-512 and AVX2), so there is one digest per instruction set, each made by running
-#: 7597987's code on such a machine (an Intel Xeon with AVX-512; an AMD EPYC with AVX2 only,
-#: 2026-12-02).
+#: SHA-256 of the episode rows of tools/rules_digest.py's job, made with the code before issue 9
+#: (commit 7597987, ``python tools/rules_digest.py --at 7597987``): the project's rules of
+#: before the paper preset was made literal (the step of (9) on the dimensionless W, the
+#: behaviour's density at its held state) must still give bit-identical results as the named
+#: options ``policy_step = dimensionless`` and ``behaviour_state = held``, with every other
+#: option at its paper value. The last bits of a run depend on the CPU (numpy's and numba's
+#: vector exp, log and reductions, numba's code for the host), so each digest is 7597987's own
+#: run on one kind of CPU.
 PAPER_GOLDEN = {
-    'avx512f': {'sync': 'adf83328dc9de397b9c2e7a23ab5f4df842abf3cdec602b7a3d756adf608d938',
-                'async': 'c0218b1175ef6e55c004e9ac277d61031ed6cadef24636151bbe967cfa33cfdd'},
-    'no avx512f': {'sync': '7dd9f0859e30a8c1bbda886c232ac44c377eb7ea8ca1f5c1a8d73c75818f05ba',
-                   'async': '26a44dc03f8dd7b2cb719f5db9cc4e76bf340e9ced1fc83b8977087d8922b4ee'}}
+    'sync': {'adf83328dc9de397b9c2e7a23ab5f4df842abf3cdec602b7a3d756adf608d938':
+             'Intel Xeon, AVX-512 (2026-12-02)',
+             '7dd9f0859e30a8c1bbda886c232ac44c377eb7ea8ca1f5c1a8d73c75818f05ba':
+             'AMD EPYC, AVX2 only (2026-12-02)',
+             'd7f27fd71b3c3ee34d18603f0a285a7b72815a311bb54005ef0ce34a5679abdd':
+             'AMD EPYC znver5, AVX-512 (2026-12-05)'},
+    'async': {'c0218b1175ef6e55c004e9ac277d61031ed6cadef24636151bbe967cfa33cfdd':
+              'Intel Xeon, AVX-512 (2026-12-02)',
+              '26a44dc03f8dd7b2cb719f5db9cc4e76bf340e9ced1fc83b8977087d8922b4ee':
+              'AMD EPYC, AVX2 only (2026-12-02)',
+              'a75624defd0077abc35811e3489d7bccf6a80b84fb68bf0187d1835e41a1e293':
+              'AMD EPYC znver5, AVX-512 (2026-12-05)'}}
+BEFORE_COMMIT = '7597987'
 
 
-def _instruction_set() -> str:
-    """'avx512f' if this CPU has AVX-512 (Linux /proc/cpuinfo flags), else 'no avx512f'."""
-    try:
-        flags = next((line.split(':', 1)[1].split() for line in
-                      open('/proc/cpuinfo').read().splitlines() if line.startswith('flags')),
-                     [])
-    except OSError:
-        flags = []
-    return 'avx512f' if 'avx512f' in flags else 'no avx512f'
+def _rules_digest():
+    """tools/rules_digest.py as a module (the job and the options live there, once)."""
+    import importlib.util
+    path = config_dir().parent / 'tools' / 'rules_digest.py'
+    spec = importlib.util.spec_from_file_location('rules_digest', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-#: The options that give the rules of before the literal paper preset.
-BEFORE_LITERAL = {'learner.policy_step': 'dimensionless', 'learner.behaviour_state': 'held'}
+@functools.lru_cache(maxsize=1)
+def _before_commit_on_this_cpu() -> dict[str, str]:
+    """7597987's own digests on this CPU, for a kind of CPU not in PAPER_GOLDEN (~30 s)."""
+    return _rules_digest().digests_at(BEFORE_COMMIT)
 
 
 @pytest.mark.parametrize('condition', ['async', 'sync'])
 def test_rules_before_the_literal_preset_are_bit_identical_as_options(tmp_path, condition):
-    import hashlib
-
-    spec = JobSpec(index=0, label=condition, condition=condition, overrides=BEFORE_LITERAL,
-                   sim_overrides={'episode.time_limit': 20.0}, seed=3, episodes=10,
-                   eval_episodes=0, arena=None, run_dir=str(tmp_path), block=5,
-                   train_start='starts')
-    rows = [{k: v for k, v in row.items()
-             if not k.startswith(('grow_share_', 'c_max_'))} for row in run_job(spec).episodes]
-    digest = hashlib.sha256(json.dumps(rows, sort_keys=True).encode()).hexdigest()
-    assert digest == PAPER_GOLDEN[_instruction_set()][condition], (
-        f'not the digest of commit 7597987 on a CPU with {_instruction_set()}; on a new kind '
-        "of CPU, run that commit's code on it to record its digest")
+    tool = _rules_digest()
+    digest = tool.digest(condition, tool.BEFORE_LITERAL, str(tmp_path))
+    if digest in PAPER_GOLDEN[condition]:
+        return                                      # 7597987's run on a CPU of that kind
+    try:
+        want = _before_commit_on_this_cpu()[condition]
+    except RuntimeError as exc:
+        pytest.fail(f'{digest} is no recorded digest of {BEFORE_COMMIT} and its code could not '
+                    f'be run here: {exc}')
+    assert digest == want, (
+        f'not the digest of commit {BEFORE_COMMIT} run on this CPU ({want}): the options '
+        'no longer give the rules of before')
 
 
 def test_literal_paper_preset_differs_from_the_rules_before(tmp_path):
     """The paper preset is not the old rules: its step of (9) is v_max^2 smaller and Async's
     behaviour densities are scored at resampled states (both change the episodes)."""
     rows = {}
-    for name, over in (('paper', {}), ('before', BEFORE_LITERAL)):
+    for name, over in (('paper', {}), ('before', _rules_digest().BEFORE_LITERAL)):
         (tmp_path / name).mkdir()
         spec = JobSpec(index=0, label='async', condition='async', overrides=over,
                        sim_overrides={'episode.time_limit': 20.0}, seed=3, episodes=10,

@@ -6,7 +6,7 @@ import csv
 import json
 
 from clis_learner.cli import main as clis
-from clis_learner.core.config import load_clis_params
+from clis_learner.core.config import load_clis_params, preset_overrides
 from clis_learner.core.runner import Agent, JobSpec, place_selection_map, run_episode, run_job
 from cr_sim.core.arena import load_arena
 from cr_sim.core.sim import Simulator, load_sim_params
@@ -80,12 +80,18 @@ def test_sync_puts_every_module_on_the_slowest_period():
 
 @pytest.mark.slow
 def test_view_module_learns_to_reach_the_destination():
-    # View alone, the paper's policy gradient (9) with its step size; random start poses
-    # (some near the goal) so that the first successes come early. Fixed seed.
-    rows = rollout('view', 0, 300, start='random')
+    """View alone learns: the improved preset (the policy gradient (9) with the bounded scaled
+    step), random start poses (some near the goal) so that the first successes come early.
+
+    Not the paper preset: under its literal step View alone learns in some seeds and
+    collapses in others (docs/results.md: 24 +- 15% after 1000 episodes), and which ones
+    depends on the CPU's last bits (seed 0 here gave 28 -> 8 successes per 100 episodes on
+    an AMD znver5, and learned on an Intel Xeon); with improved, seeds 0-5 on that AMD went
+    from 9-45 to 71-83 successes (gains 26-72). Fixed seed."""
+    rows = rollout('view', 0, 300, start='random', overrides=preset_overrides('improved'))
     first = sum(r['reached'] for r in rows[:100])
     last = sum(r['reached'] for r in rows[-100:])
-    assert last >= first + 10, (first, last)
+    assert last >= first + 15, (first, last)
 
 
 def test_place_selection_map_covers_the_free_arena():
