@@ -6,6 +6,11 @@ literal, commit 7597987, reproduced bit for bit by two named options) come from 
     python tools/rules_digest.py --before-literal   # today's code with those two options
     python tools/rules_digest.py --at 7597987       # that commit's own code, on this CPU
 
+and the paper preset (no option) before and after a change, ``--at REV`` against today's:
+
+    python tools/rules_digest.py --at 46e0749       # before the framework refactor (issue 26)
+    python tools/rules_digest.py
+
 The last bits of a run depend on the CPU's vector instructions (numpy's and numba's exp, log
 and reductions), so a digest holds for one kind of CPU: ``--at`` extracts the commit's
 ``src`` and ``config`` with ``git archive`` into a temporary folder and runs the same job with
@@ -44,8 +49,9 @@ def digest(condition: str, overrides: dict, run_dir: str) -> str:
     return hashlib.sha256(json.dumps(rows, sort_keys=True).encode()).hexdigest()
 
 
-def digests_at(commit: str, repo: Path = REPO) -> dict[str, str]:
-    """The digests of ``commit``'s own code on this CPU (its rules at their defaults).
+def digests_at(commit: str, overrides: dict | None = None, repo: Path = REPO
+               ) -> dict[str, str]:
+    """The digests of ``commit``'s own code on this CPU (``overrides``: its defaults).
 
     Raises
     ------
@@ -67,7 +73,8 @@ def digests_at(commit: str, repo: Path = REPO) -> dict[str, str]:
                    PYTHONPATH=os.pathsep.join([str(p) for p in sorted(src.iterdir())
                                                if p.is_dir()]
                                               + [os.environ.get('PYTHONPATH', '')]))
-        run = subprocess.run([sys.executable, __file__, '--overrides', '{}'], env=env,
+        run = subprocess.run([sys.executable, __file__, '--overrides',
+                              json.dumps(overrides or {})], env=env,
                              capture_output=True, text=True, cwd=tmp)
         if run.returncode != 0:
             raise RuntimeError(f'{commit}: its run failed: {run.stderr.strip()[-2000:]}')
@@ -76,17 +83,17 @@ def digests_at(commit: str, repo: Path = REPO) -> dict[str, str]:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--at', metavar='COMMIT', help="that commit's own code (git archive)")
     group = ap.add_mutually_exclusive_group()
     group.add_argument('--before-literal', action='store_true',
-                       help="today's code with the two options of the rules before 7597987")
-    group.add_argument('--at', metavar='COMMIT', help="that commit's own code (git archive)")
+                       help='the two options of the rules before 7597987')
     group.add_argument('--overrides', metavar='JSON', default='{}',
                        help="the runner's overrides as a JSON object (default {})")
     args = ap.parse_args(argv)
+    overrides = BEFORE_LITERAL if args.before_literal else json.loads(args.overrides)
     if args.at:
-        out = digests_at(args.at)
+        out = digests_at(args.at, overrides)
     else:
-        overrides = BEFORE_LITERAL if args.before_literal else json.loads(args.overrides)
         with tempfile.TemporaryDirectory() as tmp:
             out = {c: digest(c, overrides, tmp) for c in CONDITIONS}
     print(json.dumps(out, sort_keys=True))
