@@ -132,3 +132,19 @@ def test_ir_ranges_carry_the_float64_beams_that_the_scan_rounds():
     _, scan = conv.ir_from_msg(conv.ir_msg(ir, np.linspace(-1.5, 1.5, 7), 0.5, 2.0, 'base_link'))
     assert scan.tolist() != ir.tolist()                          # float32 on the wire
     assert np.array_equal(scan, ir.astype(np.float32))
+
+
+def test_status_messages_are_the_hand_computed_ones():
+    from cr_bridge.conversions import diagnostics_from_msg, diagnostics_msg
+    from diagnostic_msgs.msg import DiagnosticStatus
+    m = diagnostics_msg('warn', 'link lost', {'reconnects': 2}, 1.5, 'udp://127.0.0.1:1')
+    s = m.status[0]
+    assert (s.level, s.name, s.message, s.hardware_id) == (
+        DiagnosticStatus.WARN, 'cr_bridge: link', 'link lost', 'udp://127.0.0.1:1')
+    assert [(kv.key, kv.value) for kv in s.values] == [('reconnects', '2')]
+    assert (m.header.stamp.sec, m.header.stamp.nanosec) == (1, 500_000_000)
+    assert diagnostics_from_msg(m) == (1, 'link lost', {'reconnects': '2'})
+    e = conv.event_msg('episode', 'start', 2.25, episode=3).status[0]
+    assert (e.level, e.name, e.message, e.hardware_id) == (
+        DiagnosticStatus.OK, 'episode', 'start', 'cr')
+    assert [(kv.key, kv.value) for kv in e.values] == [('episode', '3')]

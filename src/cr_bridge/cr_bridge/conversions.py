@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from cr_sim.conversions import to_time
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from cr_sim.conversions import status_msg
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
 __all__ = ['LEVELS', 'diagnostics_msg', 'diagnostics_from_msg']
 
@@ -17,12 +17,7 @@ LEVELS = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN,
 def diagnostics_msg(level: str, message: str, values: Mapping[str, object], t: float,
                     hardware_id: str) -> DiagnosticArray:
     """One status ``cr_bridge: link``: ``level`` (ok / warn / error), a message, counters."""
-    status = DiagnosticStatus(level=LEVELS[level], name='cr_bridge: link', message=message,
-                              hardware_id=hardware_id,
-                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-    msg = DiagnosticArray(status=[status])
-    msg.header.stamp = to_time(t)
-    return msg
+    return status_msg('cr_bridge: link', LEVELS[level], message, values, t, hardware_id)
 
 
 def diagnostics_from_msg(msg: DiagnosticArray) -> tuple[int, str, dict[str, str]]:

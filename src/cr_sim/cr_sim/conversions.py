@@ -26,7 +26,7 @@ markers       visualization_msgs/MarkerArray     arena and robot
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 import math
 
 from builtin_interfaces.msg import Time
@@ -175,15 +175,21 @@ def reward_from_msg(msg: Vector3Stamped) -> tuple[float, float, int]:
     return from_time(msg.header.stamp), msg.vector.x, int(msg.vector.z)
 
 
-def event_msg(name: str, event: str, t: float, /, **values: object) -> DiagnosticArray:
-    """A stamped event: one DiagnosticStatus named ``name`` with ``message = event`` and the
-    key/values as text (episode events here, the learner's progress in the graph)."""
-    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=event,
-                              hardware_id='cr',
+def status_msg(name: str, level: bytes, message: str, values: Mapping[str, object], t: float,
+               hardware_id: str = 'cr') -> DiagnosticArray:
+    """One stamped DiagnosticStatus: ``name``, ``level`` (``DiagnosticStatus.OK`` ...), a
+    message and the key/values as text (the events here, the bridge's link report)."""
+    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
                               values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
     msg = DiagnosticArray(status=[status])
     msg.header.stamp = to_time(t)
     return msg
+
+
+def event_msg(name: str, event: str, t: float, /, **values: object) -> DiagnosticArray:
+    """A stamped event: one DiagnosticStatus named ``name`` with ``message = event`` and the
+    key/values as text (episode events here, the learner's progress in the graph)."""
+    return status_msg(name, DiagnosticStatus.OK, event, values, t)
 
 
 def event_from_msg(msg: DiagnosticArray) -> tuple[float, str, dict[str, str]]:
