@@ -137,6 +137,8 @@ def test_every_malformed_option_exits_2_with_one_line_and_writes_nothing(
     failures = []
     for option, args, text in cases(inputs):
         argv = ['run', '--out', str(out), *args] if '--out' not in args else ['run', *args]
+        if '--time-limit' not in args:      # a check that let the run start: it ends, exit 0
+            argv += ['--time-limit', '0.1']
         code, stdout, err = clis(argv, capsys)
         lines = [s for s in err.splitlines() if s.strip()]
         ok = (code == 2 and len(lines) == 1 and not stdout and 'Traceback' not in err
