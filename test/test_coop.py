@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+from pathlib import Path
 
 from clis_learner.cli import main as clis
 from clis_learner.core.config import load_clis_params, preset_groups, preset_overrides
@@ -309,10 +310,11 @@ PAPER_GOLDEN = {
 BEFORE_COMMIT = '7597987'
 
 
+@functools.lru_cache(maxsize=1)
 def _rules_digest():
     """tools/rules_digest.py as a module (the job and the options live there, once)."""
     import importlib.util
-    path = config_dir().parent / 'tools' / 'rules_digest.py'
+    path = Path(__file__).resolve().parent.parent / 'tools' / 'rules_digest.py'
     spec = importlib.util.spec_from_file_location('rules_digest', path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
