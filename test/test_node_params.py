@@ -52,10 +52,18 @@ def bad_lines(out: str) -> list[str]:
 
 
 def finish_all(procs: dict[str, subprocess.Popen]) -> dict[str, tuple[int, str]]:
+    """Each node's exit code and output; a node still running after 120 s (a hang guard) fails
+    the test, and none is left running."""
     result = {}
-    for name, proc in procs.items():
-        out, _ = proc.communicate(timeout=120)
-        result[name] = (proc.returncode, out)
+    try:
+        for name, proc in procs.items():
+            out, _ = proc.communicate(timeout=120)
+            result[name] = (proc.returncode, out)
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
     return result
 
 
