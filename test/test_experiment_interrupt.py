@@ -169,3 +169,37 @@ def test_interrupted_experiment_resumes_to_the_same_results(tmp_path, monkeypatc
         signal.signal(signal.SIGINT, previous)
     for name in ('episodes.csv', 'eval.csv'):
         assert (out / name).read_bytes() == (ref / name).read_bytes(), name
+
+
+def test_a_pool_worker_dies_on_the_pools_sigterm_whatever_the_parent_handles():
+    """The pool's termination SIGTERMs its workers. A worker forked from a process whose
+    SIGTERM handler only remembers the signal (``clis run``'s, once run in the same process,
+    or rclpy's) kept waiting on the pool's queue, whose lock the termination holds, and the
+    pool's join waited for it forever (a fresh-clone suite hung in test_runner's experiment).
+    The pool's initializer gives SIGTERM back its default action."""
+    import multiprocessing as mp
+
+    from clis_learner.experiment import _ignore_sigint
+
+    ctx = mp.get_context('fork')
+    old = signal.signal(signal.SIGTERM, lambda signum, frame: None)    # remembered, no more
+    try:
+        child = ctx.Process(target=_initialised_then_waits, args=(_ignore_sigint,))
+        child.start()
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    try:
+        time.sleep(0.5)                    # not a window: the child may still be starting
+        child.terminate()
+        child.join(60)                     # a hang guard
+        assert child.exitcode == -signal.SIGTERM, child.exitcode
+    finally:
+        if child.is_alive():
+            child.kill()
+            child.join()
+
+
+def _initialised_then_waits(initializer) -> None:
+    initializer()
+    while True:
+        time.sleep(0.1)

@@ -491,8 +491,12 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
 def _ignore_sigint() -> None:
     """In the worker and manager processes: Ctrl-C (SIGINT to the whole process group) is
     left to the main process, which stops them (the pool is terminated when its ``with``
-    block exits) and prints one line instead of a traceback per process."""
+    block exits) and prints one line instead of a traceback per process. SIGTERM, which
+    that termination sends, kills them whatever handler the forking process had installed
+    (a handler that only remembers it, as ``clis run``'s in the same process before, or
+    rclpy's, left a worker waiting on the pool's queue and the pool's join waiting for it)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _atomic_write_text(path: Path, text: str) -> None:

@@ -130,7 +130,7 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
     # counts too, even one whose KeyboardInterrupt was swallowed where it was raised
     interrupted = ctrl_c.interrupted
     old = signal.signal(signal.SIGINT, lambda signum, _: ctrl_c.remember(signum))
-    signal.signal(signal.SIGTERM, lambda signum, _: ctrl_c.remember(signum))
+    old_term = signal.signal(signal.SIGTERM, lambda signum, _: ctrl_c.remember(signum))
     sup = Supervisor(plan, out, args.params, args.max_restarts, say)
     monitor = Monitor()
     code = EXIT_OK
@@ -174,4 +174,5 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
         monitor.node.destroy_node()
         rclpy.try_shutdown()
         signal.signal(signal.SIGINT, old)
+        signal.signal(signal.SIGTERM, old_term)
     return code
