@@ -179,12 +179,12 @@ def test_a_pool_worker_dies_on_the_pools_sigterm_whatever_the_parent_handles():
     The pool's initializer gives SIGTERM back its default action."""
     import multiprocessing as mp
 
-    from clis_learner.experiment import _ignore_sigint
+    from clis_learner.experiment import _worker_signals
 
     ctx = mp.get_context('fork')
     old = signal.signal(signal.SIGTERM, lambda signum, frame: None)    # remembered, no more
     try:
-        child = ctx.Process(target=_initialised_then_waits, args=(_ignore_sigint,))
+        child = ctx.Process(target=_initialised_then_waits, args=(_worker_signals,))
         child.start()
     finally:
         signal.signal(signal.SIGTERM, old)

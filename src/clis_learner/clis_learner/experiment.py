@@ -458,10 +458,10 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         manager = SyncManager(ctx=ctx)
-        manager.start(_ignore_sigint)     # Ctrl-C is the main process's to handle (cli.main)
+        manager.start(_worker_signals)     # Ctrl-C is the main process's to handle (cli.main)
         q = manager.Queue()
         pool = ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1,
-                        initializer=_ignore_sigint)
+                        initializer=_worker_signals)
     except BaseException:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         raise
@@ -488,7 +488,7 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
         manager.shutdown()
 
 
-def _ignore_sigint() -> None:
+def _worker_signals() -> None:
     """In the worker and manager processes: Ctrl-C (SIGINT to the whole process group) is
     left to the main process, which stops them (the pool is terminated when its ``with``
     block exits) and prints one line instead of a traceback per process. SIGTERM, which
