@@ -25,15 +25,16 @@ import time
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / 'src' / 'clis_learner'))
+sys.path.insert(0, str(HERE.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(HERE.parent / 'src' / 'cr_sim'))
-from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
+from clis_app.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 
 def graph_rate(episodes: int, out: Path) -> dict:
-    from clis_learner.core.bag import bag_info
+    from clis_app.core.bag import bag_info
     bag = out / 'graph'
     t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, '-m', 'clis_learner.cli', 'run', '--condition',
+    proc = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'run', '--condition',
                            'async', '--episodes', str(episodes), '--quiet', '--out',
                            str(out / 'run'), '--record', str(bag)], capture_output=True,
                           text=True, timeout=1800)
@@ -58,9 +59,9 @@ def _cpu_ticks(pid: int) -> int:
 
 
 def recorder_rate(topics: int, rate: float, seconds: float, out: Path) -> dict:
-    from clis_learner.core.bag import bag_info
+    from clis_app.core.bag import bag_info
     bag = out / f'load-{topics}x{rate:g}'
-    rec = subprocess.Popen([sys.executable, '-m', 'clis_learner.recorder_node', '--ros-args',
+    rec = subprocess.Popen([sys.executable, '-m', 'clis_app.recorder_node', '--ros-args',
                             '-p', f'recorder.path:={bag}', '-p', 'use_sim_time:=false',
                             '-p', 'recorder.topics:=' + ','.join(f'/load/t{k}'
                                                                 for k in range(topics))],

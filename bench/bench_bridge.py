@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 _REPO = Path(__file__).resolve().parent.parent
-for pkg in ('cr_sim', 'cr_bridge', 'clis_learner', 'clis_modules'):
+for pkg in ('cr_sim', 'cr_bridge', 'clis_learner', 'clis_app', 'clis_modules'):
     sys.path.insert(0, str(_REPO / 'src' / pkg))
 
 from cr_bridge.core import protocol as proto  # noqa: E402
@@ -72,7 +72,7 @@ def core_rates(seconds: float) -> dict:
 
 
 def ros_latencies(trials: int) -> dict:
-    from clis_learner.ros_env import apply_ros_env, pick_domain_id
+    from clis_app.ros_env import apply_ros_env, pick_domain_id
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

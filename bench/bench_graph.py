@@ -51,9 +51,11 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_learner'))
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
-from clis_learner.graph_plan import REALTIME_ABOVE  # noqa: E402
-from clis_learner.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
+from clis_app.graph_plan import REALTIME_ABOVE  # noqa: E402
+from clis_app.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 TICK = os.sysconf('SC_CLK_TCK')
 #: Paced runs (``--speed 1``) are measured from this many wall seconds after the first
@@ -97,7 +99,7 @@ def measure(seconds: float, single: bool, executor: str = 'lean',
     from sensor_msgs.msg import JointState
 
     out = Path(tempfile.mkdtemp(prefix='bench_graph_'))
-    cmd = [sys.executable, '-m', 'clis_learner.cli', 'run', '--condition', 'async',
+    cmd = [sys.executable, '-m', 'clis_app.cli', 'run', '--condition', 'async',
            '--episodes', '100000', '--out', str(out), '--quiet']
     if single:
         cmd.append('--single-process')

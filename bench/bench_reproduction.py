@@ -36,7 +36,7 @@ def main() -> int:
     args = ap.parse_args()
     if args.out.exists():
         shutil.rmtree(args.out)
-    cmd = [sys.executable, '-m', 'clis_learner.cli', 'experiment',
+    cmd = [sys.executable, '-m', 'clis_app.cli', 'experiment',
            '--conditions', 'innate,view,place,sync,async', '--episodes', str(args.episodes),
            '--seeds', str(args.seeds), '--workers', str(args.workers), '--out', str(args.out),
            '--eval-every', '0', '--quiet']   # issue 8's workload: no periodic evaluation

@@ -41,7 +41,7 @@ def run(seconds: float, warmup: float, single: bool, speed: float, params: list[
         out: Path, sched: list[str], extra_args: list[str]) -> Path:
     trace = out / 'trace'
     env = dict(os.environ, CLIS_TRACE=str(trace))
-    cmd = [sys.executable, '-m', 'clis_learner.cli', 'run', '--condition', 'async',
+    cmd = [sys.executable, '-m', 'clis_app.cli', 'run', '--condition', 'async',
            '--episodes', '100000', '--out', str(out / 'run'), '--quiet']
     if single:
         cmd.append('--single-process')
@@ -219,8 +219,9 @@ def main() -> int:
         print(analyse(d / 'trace' if (d / 'trace').is_dir() else d, d / 'round_trips.txt'))
         return 0
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_learner'))
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_app'))
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
-    from clis_learner.ros_env import apply_ros_env, pick_domain_id
+    from clis_app.ros_env import apply_ros_env, pick_domain_id
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
     out = Path(args.out or tempfile.mkdtemp(prefix='trace_rtt_'))

@@ -85,3 +85,50 @@ def test_the_robots_body_is_read_from_robot_yaml_only():
     for path in sorted(SRC.rglob('*.py')):
         text = path.read_text(encoding='utf-8')
         assert not re.search(r"ros_parameters\([^)]*sim\.yaml[^)]*\)\[\s*'robot'", text), path
+
+
+
+#: The packages in the order their imports may run: each imports only those before it.
+LAYERS = ('cr_sim', 'cr_bridge', 'clis_modules', 'clis_learner', 'clis_app')
+#: cr_bridge and clis_modules are side by side: neither imports the other.
+SIDE_BY_SIDE = {('cr_bridge', 'clis_modules'), ('clis_modules', 'cr_bridge')}
+
+
+def upward_imports(src: Path) -> list[str]:
+    """``FILE imports [PKG]`` for every import against the layers (function-local ones too)."""
+    bad = []
+    for k, package in enumerate(LAYERS):
+        for path in sorted((src / package / package).rglob('*.py')):
+            tops = {name.split('.')[0] for name in _imports(path)} & set(LAYERS) - {package}
+            wrong = sorted(t for t in tops
+                           if t in LAYERS[k + 1:] or (package, t) in SIDE_BY_SIDE)
+            if wrong:
+                bad.append(f'{path.relative_to(src)} imports {wrong}')
+    return bad
+
+
+def test_imports_run_one_way_from_the_application_to_the_simulator():
+    """The learning package imports nothing of the application; no package imports upwards."""
+    assert sorted(p.name for p in SRC.iterdir() if (p / 'package.xml').exists()) \
+        == sorted(LAYERS)
+    assert upward_imports(SRC) == []
+
+
+def test_the_one_way_check_finds_an_upward_import(tmp_path):
+    """A learner module that imports the application in a function is found."""
+    for package in LAYERS:
+        (tmp_path / package / package).mkdir(parents=True)
+    (tmp_path / 'clis_learner' / 'clis_learner' / 'memory.py').write_text(
+        'def f():\n    from clis_app.core import runner\n    return runner\n')
+    (tmp_path / 'cr_bridge' / 'cr_bridge' / 'a.py').write_text('import clis_modules.core\n')
+    (tmp_path / 'clis_app' / 'clis_app' / 'b.py').write_text('import cr_sim, clis_learner\n')
+    assert upward_imports(tmp_path) == [
+        "cr_bridge/cr_bridge/a.py imports ['clis_modules']",
+        "clis_learner/clis_learner/memory.py imports ['clis_app']"]
+
+
+def test_the_learning_package_has_no_plotting_dependency():
+    xml = (SRC / 'clis_learner' / 'package.xml').read_text(encoding='utf-8')
+    assert not re.search(r'matplotlib|plot', xml, re.IGNORECASE)
+    setup = (SRC / 'clis_learner' / 'setup.py').read_text(encoding='utf-8')
+    assert 'clis =' not in setup and 'recorder' not in setup

@@ -8,7 +8,7 @@ import csv
 import json
 import math
 
-from clis_learner.cli import main as clis
+from clis_app.cli import main as clis
 from clis_learner.core.config import load_clis_params
 from clis_modules.core.localization import MarkovLocalizer
 from clis_modules.core.modules import arena_map
@@ -130,7 +130,7 @@ def test_headless_experiment_runs_in_it_with_the_fig4_map(lab, repo, tmp_path):
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from clis_learner import figures
+    from clis_app import figures
     fig, ax = plt.subplots()
     figures.draw_arena(ax, run['arena'])
     assert ax.get_xlim() == (0.0, 3.6) and ax.get_ylim() == (0.0, 2.4), 'the figure is the floor'

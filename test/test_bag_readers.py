@@ -19,7 +19,7 @@ import shutil
 import subprocess
 import sys
 
-from clis_learner.core.bag import SEPARATOR, BagReader, BagWriter, bag_topics, definition
+from clis_app.core.bag import SEPARATOR, BagReader, BagWriter, bag_topics, definition
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -142,7 +142,7 @@ def recorded_bag(tmp_path_factory) -> Path:
     params.write_text('sim:\n  ros__parameters:\n    episode:\n      time_limit: 4.0\n'
                       '      wander_time: 0.5\n')
     bag = tmp / 'bag'
-    out = subprocess.run([sys.executable, '-m', 'clis_learner.cli', 'run', '--condition',
+    out = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'run', '--condition',
                           'async', '--episodes', '2', '--quiet', '--single-process', '--params',
                           str(params), '--out', str(tmp / 'run'), '--record', str(bag)],
                          capture_output=True, text=True, timeout=180)

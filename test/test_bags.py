@@ -12,7 +12,7 @@ import subprocess
 import sys
 import time
 
-from clis_learner.core.bag import (
+from clis_app.core.bag import (
     SEPARATOR,
     BagError,
     BagReader,
@@ -31,12 +31,12 @@ QOS = [qos_dict('keep_last', 10, 'reliable', 'volatile')]
 
 
 def clis(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, '-m', 'clis_learner.cli', *args], text=True,
+    return subprocess.run([sys.executable, '-m', 'clis_app.cli', *args], text=True,
                           capture_output=True, timeout=timeout)
 
 
 def start_recorder(path: Path, *ros: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, '-m', 'clis_learner.recorder_node', '--ros-args',
+    return subprocess.Popen([sys.executable, '-m', 'clis_app.recorder_node', '--ros-args',
                              '-p', f'recorder.path:={path}', '-p', 'use_sim_time:=false', *ros],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
@@ -275,7 +275,7 @@ def test_replay_reproduces_sequence_and_timing(tmp_path):
             (t, m.position[0], info['source_timestamp'])), 100)
     node.create_subscription(Clock, '/clock', lambda m: clocks.append(
         m.clock.sec * 1_000_000_000 + m.clock.nanosec), 100)
-    proc = subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', 'replay', str(bag),
+    proc = subprocess.Popen([sys.executable, '-m', 'clis_app.cli', 'replay', str(bag),
                              '--quiet', '--wait-for-subscribers', '--delay', '0.5'],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from clis_learner.cli import main as clis
+from clis_app.cli import main as clis
 import pytest
 
 #: (arguments, what the one line must name); OUT is replaced by a path in the empty folder.

@@ -20,7 +20,7 @@ from clis_modules.core.modules import arena_map, make_modules
 from cr_sim.core.arena import load_arena
 import pytest
 
-from clis_learner import cli
+from clis_app import cli
 
 PARAMS = {
     'unknown.yaml': '/**:\n  ros__parameters:\n    common: {bta: 200.0}\n',
@@ -155,7 +155,7 @@ def test_the_entry_point_refuses_a_missing_arena_at_once_without_traceback(tmp_p
     """The installed path (a process): `clis run --arena /nonexistent.yaml` used to start the
     graph, print '100 episodes', fail 10 s later in a module node and leave OUT/logs."""
     out = tmp_path / 'out'
-    res = subprocess.run([sys.executable, '-m', 'clis_learner.cli', 'run', '--arena',
+    res = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'run', '--arena',
                           '/nonexistent.yaml', '--out', str(out)], cwd=tmp_path,
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 2, res.stderr

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import csv
 
-from clis_learner.cli import main
-from clis_learner.compare import compare, load_curves
+from clis_app.cli import main
+from clis_app.compare import compare, load_curves
 import numpy as np
 
 

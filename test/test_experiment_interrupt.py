@@ -12,7 +12,7 @@ import subprocess
 import sys
 import time
 
-from clis_learner.cli import main as clis
+from clis_app.cli import main as clis
 import numpy as np
 import pytest
 
@@ -50,7 +50,7 @@ def test_ctrl_c_during_an_experiment_stops_its_processes_with_one_line(tmp_path)
     runs."""
     out = tmp_path / 'exp'
     # far more episodes than it can learn before the test stops it, on any host
-    proc = subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', *TINY[:3],
+    proc = subprocess.Popen([sys.executable, '-m', 'clis_app.cli', *TINY[:3],
                              '--episodes', '100000', '--block', '5', '--eval-every', '0',
                              '--quiet', '--workers', '1', '--out', str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -179,7 +179,7 @@ def test_a_pool_worker_dies_on_the_pools_sigterm_whatever_the_parent_handles():
     The pool's initializer gives SIGTERM back its default action."""
     import multiprocessing as mp
 
-    from clis_learner.experiment import _worker_signals
+    from clis_app.experiment import _worker_signals
 
     ctx = mp.get_context('fork')
     old = signal.signal(signal.SIGTERM, lambda signum, frame: None)    # remembered, no more

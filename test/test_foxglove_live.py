@@ -30,8 +30,8 @@ import subprocess
 import sys
 import time
 
-from clis_learner.core.bag import BagReader, message_definition
-from clis_learner.foxglove_node import (
+from clis_app.core.bag import BagReader, message_definition
+from clis_app.foxglove_node import (
     CONFIG_FILE,
     PATH_TOPIC,
     SUCCESS_TOPIC,
@@ -121,7 +121,7 @@ def live(tmp_path_factory):
     params = out.parent / 'foxglove.yaml'
     params.write_text(f'/**:\n  ros__parameters:\n    foxglove:\n      max_rate: {MAX_RATE}\n')
     port = free_port()
-    proc = subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', 'run', '--out', str(out),
+    proc = subprocess.Popen([sys.executable, '-m', 'clis_app.cli', 'run', '--out', str(out),
                              '--quiet', '--condition', 'async', '--episodes', '2', '--seed', '1',
                              '--foxglove', str(port), '--foxglove-wait', '--record', str(bag),
                              '--params', str(params)],
@@ -288,7 +288,7 @@ def test_the_server_listens_on_loopback_only(live):
 
 def test_the_shipped_layout_is_the_models_and_shows_served_topics(repo):
     text = (repo / 'config' / 'foxglove_layout.json').read_text()
-    assert text == layout_json(), 'regenerate: python -c "from clis_learner.foxglove_node ' \
+    assert text == layout_json(), 'regenerate: python -c "from clis_app.foxglove_node ' \
                                   'import layout_json; print(layout_json(), end=\'\')"'
     shown = shown_topics(json.loads(text))
     assert shown and shown <= EXPECTED, shown - EXPECTED

@@ -49,7 +49,7 @@ def clis_run(out: Path, *args: str) -> subprocess.Popen:
     out.parent.mkdir(parents=True, exist_ok=True)
     short = out.parent / f'{out.name}-short.yaml'
     short.write_text(SHORT)
-    return subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', 'run', '--out', str(out),
+    return subprocess.Popen([sys.executable, '-m', 'clis_app.cli', 'run', '--out', str(out),
                              '--quiet', '--params', str(short), *args], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
 
@@ -173,8 +173,8 @@ class Recorded:
     host, loses packets: under two busy loops a probe once had no episode of the run whole."""
 
     def __init__(self, bag: Path) -> None:
-        from clis_learner.core.bag import BagReader
-        from clis_learner.recorder_node import message_class
+        from clis_app.core.bag import BagReader
+        from clis_app.recorder_node import message_class
         from rclpy.serialization import deserialize_message
         self.msgs: dict[str, list] = defaultdict(list)
         self.seqs: dict[str, list[int]] = defaultdict(list)
@@ -468,7 +468,7 @@ def test_loopback_only_while_the_graph_runs(tmp_path):
     of the host is not counted)."""
     short = tmp_path / 'short.yaml'
     short.write_text(SHORT)
-    proc = subprocess.Popen(in_netns([sys.executable, '-m', 'clis_learner.cli', 'run', '--out',
+    proc = subprocess.Popen(in_netns([sys.executable, '-m', 'clis_app.cli', 'run', '--out',
                                       str(tmp_path / 'out'), '--quiet', '--condition', 'view',
                                       '--episodes', '2', '--params', str(short)]),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -27,7 +27,7 @@ NODES = {
     'place': ('clis_modules', 'place', 'module.params_timeout', '[0.0, 600.0]'),
     'arbiter': ('clis_modules', 'arbiter', 'arbiter_node.lockstep_timeout', None),
     'learner': ('clis_learner', 'learner', 'learner_node.close_timeout', None),
-    'recorder': ('clis_learner', 'recorder', 'recorder.flush_interval', None),
+    'recorder': ('clis_app', 'recorder', 'recorder.flush_interval', None),
     'bridge': ('cr_bridge', 'bridge', 'node.link_timeout', '[0.05, 30.0]'),
 }
 

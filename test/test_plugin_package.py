@@ -103,7 +103,7 @@ def installed(tmp_path_factory):
 
 def cli(*args: str, timeout: float) -> subprocess.CompletedProcess:
     """``clis ARGS`` in a fresh interpreter (it finds the newly installed entry point)."""
-    return subprocess.run([sys.executable, '-m', 'clis_learner.cli', *args],
+    return subprocess.run([sys.executable, '-m', 'clis_app.cli', *args],
                           capture_output=True, text=True, timeout=timeout)
 
 
@@ -131,7 +131,7 @@ def test_experiment_runs_and_learns_the_plugin_module(installed, tmp_path):
 
 
 def test_clis_run_starts_its_node_which_proposes_at_its_period_and_learns(installed, tmp_path):
-    from clis_learner.core.bag import BagReader
+    from clis_app.core.bag import BagReader
     from clis_modules.conversions import proposal_from_msg
     from cr_sim.conversions import episode_from_msg
     from diagnostic_msgs.msg import DiagnosticArray

@@ -7,8 +7,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from clis_app.core.runner import Agent, run_episode
 from clis_learner.core.config import load_clis_params
-from clis_learner.core.runner import Agent, run_episode
 from clis_modules.core.modules import condition_periods, condition_sensors, make_modules
 from clis_modules.core.plugin import (
     ENTRY_POINT_GROUP,
@@ -156,7 +156,7 @@ def test_the_percept_carries_every_sensor_as_the_observation_has_it():
 
 
 def test_graph_plan_starts_any_module_as_the_generic_node(tmp_path):
-    from clis_learner.graph_plan import plan_graph
+    from clis_app.graph_plan import plan_graph
     plan = plan_graph('async:innate+wall', 0, tmp_path, 0.0)
     wall = plan.by_name('wall')
     assert (wall.package, wall.executable, wall.remaps) == ('clis_modules', 'module',
@@ -171,7 +171,7 @@ def test_graph_plan_takes_the_periods_and_selection_of_the_params_files(tmp_path
     """The nodes read ``--params``; the simulator's lockstep instants and agent stream must
     be those too (they came from config/clis.yaml alone: a period override deadlocked the
     lockstep at instants no module decided on)."""
-    from clis_learner.graph_plan import plan_graph
+    from clis_app.graph_plan import plan_graph
     sim = plan_graph('async:innate+wall', 0, tmp_path, 0.0, clis_overrides={
         'wall.period': 1.0, 'arbiter.selection': 'decision'}).by_name('sim')
     assert sim.params['node.lockstep_periods'] == [0.25, 1.0]

@@ -37,7 +37,7 @@ EXACT = ('start', 'reached', 'duration', 'collisions', 'ret', 'behaviour')
 
 
 def clis(*args: str) -> None:
-    proc = subprocess.run([sys.executable, '-m', 'clis_learner.cli', *args],
+    proc = subprocess.run([sys.executable, '-m', 'clis_app.cli', *args],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
 

@@ -37,7 +37,7 @@ import sys
 import threading
 import time
 
-from clis_learner.cli import main as clis
+from clis_app.cli import main as clis
 import numpy as np
 import pytest
 
@@ -63,7 +63,7 @@ def argv(out: Path, params: Path, speed: float = 0.0) -> list[str]:
 
 
 def start(args: list[str]) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, '-m', 'clis_learner.cli', *args],
+    return subprocess.Popen([sys.executable, '-m', 'clis_app.cli', *args],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
@@ -176,8 +176,8 @@ def test_a_ctrl_c_swallowed_while_clis_run_starts_still_stops_it(sandbox, monkey
     """A Ctrl-C whose KeyboardInterrupt is lost before the graph's handler is installed (it
     landed in a gc callback while ``clis run`` imported its modules: the run then learned all
     its episodes and exited 0) still stops the run: ``clis`` remembers it from its start
-    (``clis_learner.ctrl_c``)."""
-    import clis_learner.graph_cli as graph_cli
+    (``clis_app.ctrl_c``)."""
+    import clis_app.graph_cli as graph_cli
     params = sandbox / 'short.yaml'
     params.write_text(PARAMS)
     out = sandbox / 'run'

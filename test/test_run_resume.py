@@ -15,7 +15,7 @@ from pathlib import Path
 import subprocess
 import sys
 
-from clis_learner.graph_cli import _keep_rows_until
+from clis_app.graph_cli import _keep_rows_until
 import numpy as np
 import pytest
 
@@ -24,7 +24,7 @@ PARAMS = '/**:\n  ros__parameters:\n    episode: {time_limit: 4.0, wander_time: 
 
 
 def clis_run(out: Path, params: Path, *args: str) -> None:
-    res = subprocess.run([sys.executable, '-m', 'clis_learner.cli', 'run', '--condition',
+    res = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'run', '--condition',
                           'innate', '--episodes', '2', '--params', str(params), '--out', str(out),
                           '--quiet', *args], capture_output=True, text=True, timeout=600)
     logs = '\n'.join(f'--- {p.name}\n{p.read_text()[-2000:]}'

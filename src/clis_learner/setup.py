@@ -12,20 +12,17 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('bin', ['scripts/clis']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
     maintainer='CLIS maintainers',
     maintainer_email='clis@example.org',
-    description='CLIS learner: resampling, importance-sampled updates, experiments, clis.',
+    description="CLIS learner: episode memory, resampling to each module's period, "
+                'importance-sampled TD(lambda) and policy gradient, the learner node.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'clis = clis_learner.cli:main',
             'learner = clis_learner.learner_node:main',
-            'recorder = clis_learner.recorder_node:main',
-            'foxglove = clis_learner.foxglove_node:main',
         ],
     },
 )

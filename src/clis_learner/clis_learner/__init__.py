@@ -1,1 +1,1 @@
-"""clis_learner: episode memory, resampling, importance-sampled updates, experiments."""
+"""clis_learner: episode memory, resampling, importance-sampled updates, the learner node."""

@@ -1,10 +1,10 @@
 """``clis record``, ``clis replay``, ``clis learn``, ``clis bag info``: runs as MCAP bags.
 
 A bag is a rosbag2 folder (``NAME_0.mcap`` + ``metadata.yaml``) that ``ros2 bag info/play``,
-Foxglove and PlotJuggler open (:mod:`clis_learner.core.bag`). ``clis run --record bags/NAME``
-records a run with the ``recorder`` node (:mod:`clis_learner.recorder_node`); ``clis record``
+Foxglove and PlotJuggler open (:mod:`clis_app.core.bag`). ``clis run --record bags/NAME``
+records a run with the ``recorder`` node (:mod:`clis_app.recorder_node`); ``clis record``
 runs that node on its own. ``clis replay`` republishes a bag with its recorded timing and QoS
-(:mod:`clis_learner.replay`). ``clis learn`` trains the modules from the episodes of bags
+(:mod:`clis_app.replay`). ``clis learn`` trains the modules from the episodes of bags
 through the learner node's own path: the messages decoded by the same conversions, fed in
 recorded order into the same :class:`~clis_learner.core.stream.EpisodeStream` (stream buffer,
 episode memory, :class:`~clis_learner.core.learner.Learner`); the checkpoint it writes is what
@@ -94,7 +94,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 # ---------------------------------------------------------------------------- info / record
 
 def _info(args: argparse.Namespace) -> int:
-    from clis_learner.core.bag import BagError, bag_info, format_info
+    from clis_app.core.bag import BagError, bag_info, format_info
     try:
         info = bag_info(args.bag)
     except (BagError, OSError) as exc:
@@ -105,7 +105,7 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
-    from clis_learner import recorder_node
+    from clis_app import recorder_node
     out = args.out or Path('bags') / f'record-{time.strftime("%Y%m%d-%H%M%S")}'
     print(f'clis record: into {out}, ROS_DOMAIN_ID {os.environ.get("ROS_DOMAIN_ID")}; Ctrl-C '
           'finishes the bag', file=sys.stderr, flush=True)
@@ -121,21 +121,20 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from clis_learner.replay import replay
+    from clis_app.replay import replay
     return replay(args)
 
 
 # ---------------------------------------------------------------------------- learn
 
 def feed_stream(stream: Any, messages: Iterable[Any], namespace: str = '/') -> Iterator[Any]:
-    """Feed a bag's messages (:class:`~clis_learner.core.bag.BagMessage`, recorded order) to an
+    """Feed a bag's messages (:class:`~clis_app.core.bag.BagMessage`, recorded order) to an
     :class:`~clis_learner.core.stream.EpisodeStream` through the learner node's routing
     (:mod:`clis_learner.stream_topics`); yield each closed episode
     (:class:`~clis_learner.core.stream.Closed`). An episode that ended is closed at the next
     start or at the end of the messages (all its records are in by then)."""
-    from rclpy.serialization import deserialize_message
-
     from clis_learner.stream_topics import EPISODE, feed_episode, feed_record, record_topics
+    from rclpy.serialization import deserialize_message
 
     routes = {topic: (kind, msg_type)
               for kind, topic, msg_type in record_topics(stream.names, namespace)}
@@ -174,17 +173,17 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
 
     Returns a summary: ``{'episodes': learned, 'skipped': not learned, 'version': ...,
     'condition': ..., 'damaged': [messages]}``. Raises ValueError (bad input) or
-    :class:`~clis_learner.core.bag.BagError` (a bag that cannot be opened).
+    :class:`~clis_app.core.bag.BagError` (a bag that cannot be opened).
     """
+    from clis_learner.core.checkpoint import load_checkpoint, save_checkpoint
+    from clis_learner.core.config import ClisParams, load_clis_params, params_hash
+    from clis_learner.core.stream import EpisodeStream
     from clis_modules.core.modules import arena_map, make_modules
     from clis_modules.core.plugin import parse_condition
     from cr_sim.core.arena import load_arena
     from cr_sim.core.params import config_dir, ros_parameters
 
-    from clis_learner.core.bag import BagError, BagReader, bag_info
-    from clis_learner.core.checkpoint import load_checkpoint, save_checkpoint
-    from clis_learner.core.config import ClisParams, load_clis_params, params_hash
-    from clis_learner.core.stream import EpisodeStream
+    from clis_app.core.bag import BagError, BagReader, bag_info
 
     readers = [BagReader(b) for b in bags]
     first = readers[0]
@@ -248,10 +247,10 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
 
 
 def _learn(args: argparse.Namespace) -> int:
+    from clis_learner.core.checkpoint import CheckpointError
     from cr_sim.core.params import ConfigError
 
-    from clis_learner.core.bag import BagError
-    from clis_learner.core.checkpoint import CheckpointError
+    from clis_app.core.bag import BagError
     for b in args.bags:
         if not b.exists():
             print(f'clis learn: {b}: no such bag', file=sys.stderr)

@@ -1,6 +1,6 @@
 """Figures of the experiments (the paper's Fig. 3-5, plus the diagnostics that explain them).
 
-Every figure is drawn from saved runs (:class:`clis_learner.core.runner.JobResult`), so
+Every figure is drawn from saved runs (:class:`clis_app.core.runner.JobResult`), so
 ``clis experiment --figures-only`` redraws them without rerunning anything.
 """
 

@@ -1,6 +1,6 @@
 """How the ``clis`` command and its subcommands format their ``--help``.
 
-Its own module: ``clis`` (:mod:`clis_learner.cli`) imports every subcommand's module, and each
+Its own module: ``clis`` (:mod:`clis_app.cli`) imports every subcommand's module, and each
 of those formats its help with :class:`HelpFormatter`.
 """
 

@@ -1,6 +1,6 @@
 """``clis experiment --backend ray``: the experiment's runs as Ray tasks (docs/scale.md).
 
-Each run (condition, seed) is one task: :func:`~clis_learner.core.runner.run_job` on whichever
+Each run (condition, seed) is one task: :func:`~clis_app.core.runner.run_job` on whichever
 Ray worker gets it, into a temporary folder of that worker; the task returns the run's result
 file and checkpoint as bytes and the driver writes them to ``OUT/runs/`` exactly where the
 process pool writes them, so no shared file system is needed, ``--resume`` sees the same files
@@ -34,7 +34,8 @@ import tempfile
 from typing import Any
 
 from clis_learner.core.config import params_hash
-from clis_learner.core.runner import JobResult, JobSpec, run_job
+
+from clis_app.core.runner import JobResult, JobSpec, run_job
 
 __all__ = ['LOCAL_ENV', 'MAX_RETRIES', 'init_ray', 'run_ray']
 
@@ -121,7 +122,7 @@ def run_ray(todo: list[JobSpec], workers: int, address: str | None,
 
     Parameters
     ----------
-    progress : clis_learner.experiment.Progress
+    progress : clis_app.experiment.Progress
         Gets ``update(job, episodes, note)`` and ``finish(job, episodes, note)``.
     on_start : callable, optional
         Called with the ``ray`` module once it is initialised (tests).

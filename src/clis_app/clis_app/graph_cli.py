@@ -54,9 +54,9 @@ from typing import Any
 
 from clis_modules.core.plugin import parse_condition
 
-from clis_learner.graph_plan import REALTIME_ABOVE, REALTIME_PRIORITY, plan_graph
-from clis_learner.run_curve import summary, write_curve
-from clis_learner.supervise import EXIT_CONFIG, run_processes
+from clis_app.graph_plan import REALTIME_ABOVE, REALTIME_PRIORITY, plan_graph
+from clis_app.run_curve import summary, write_curve
+from clis_app.supervise import EXIT_CONFIG, run_processes
 
 __all__ = ['register', 'main']
 
@@ -200,10 +200,9 @@ def _check_args(args: argparse.Namespace) -> str | None:
     for opt, path in (('--out', args.out), ('--record', args.record)):
         if path is not None and path.exists() and not path.is_dir():
             return f'{opt} {path}: exists and is not a folder'
+    from clis_learner.core.config import check_params_file, load_clis_params
     from cr_sim.core.arena import load_arena
     from cr_sim.core.params import ConfigError
-
-    from clis_learner.core.config import check_params_file, load_clis_params
     try:
         arena = load_arena(args.arena or None)
     except (ConfigError, OSError) as exc:
@@ -224,10 +223,9 @@ def _check_args(args: argparse.Namespace) -> str | None:
     args.first_episode, args.sim_state, args.version = 1, '', 0
     if args.resume is None:
         return None
-    from clis_modules.core.modules import arena_map, make_modules
-
     from clis_learner.core.checkpoint import CheckpointError, load_checkpoint
     from clis_learner.core.config import params_hash
+    from clis_modules.core.modules import arena_map, make_modules
     clis = load_clis_params(overrides=args.clis_overrides or None)
     try:
         meta = load_checkpoint(args.resume, make_modules(clis, args.condition,
@@ -254,6 +252,7 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
     ``robot.yaml``), checked as
     each node will (the CLIS keys are checked by the config loader): ConfigError naming the
     key and its range."""
+    from clis_learner.learner_node import LearnerNodeParams
     from clis_modules.arbiter_node import ArbiterNodeParams
     from clis_modules.graph_node import GraphParams
     from clis_modules.module_node import ModuleNodeParams
@@ -271,8 +270,7 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
     from cr_sim.core.sim import IGNORED_SECTIONS, load_sim_params
     from cr_sim.sim_node import SimNodeParams
 
-    from clis_learner.learner_node import LearnerNodeParams
-    from clis_learner.recorder_node import RecorderParams
+    from clis_app.recorder_node import RecorderParams
     files = {'graph.yaml': ('/**', {'graph': GraphParams, 'module': ModuleNodeParams,
                                     'arbiter_node': ArbiterNodeParams,
                                     'learner_node': LearnerNodeParams,
@@ -302,9 +300,8 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
 
 
 def _clis_keys() -> set[str]:
-    from cr_sim.core.params import config_dir, flatten, ros_parameters
-
     from clis_learner.core.config import CLIS_NODE
+    from cr_sim.core.params import config_dir, flatten, ros_parameters
     return set(flatten(ros_parameters(config_dir() / 'clis.yaml', CLIS_NODE)))
 
 
@@ -370,7 +367,7 @@ def main(args: argparse.Namespace) -> int:
               f'{out / "checkpoint.npz"}, or choose another --out', file=sys.stderr)
         return EXIT_CONFIG
     # the graph's nodes (and this process's monitor) pass their data through shared memory
-    from clis_learner.ros_env import use_graph_profile
+    from clis_app.ros_env import use_graph_profile
     use_graph_profile()
     try:
         plan = plan_graph(args.condition, args.seed, out, args.speed,
@@ -387,7 +384,7 @@ def main(args: argparse.Namespace) -> int:
               '[PORT]', file=sys.stderr)
         return EXIT_CONFIG
     if args.foxglove is not None:                    # the live view (docs/foxglove.md)
-        from clis_learner.foxglove_node import plan_live_view
+        from clis_app.foxglove_node import plan_live_view
         if error := plan_live_view(plan, args):
             print(f'clis run: {error}', file=sys.stderr)
             return EXIT_CONFIG
@@ -408,7 +405,7 @@ def main(args: argparse.Namespace) -> int:
         f'speed {"max" if args.speed == 0 else f"x{args.speed:g}"}, ROS_DOMAIN_ID '
         f'{os.environ.get("ROS_DOMAIN_ID")}, out {out}')
     if args.single_process:
-        from clis_learner.graph_single import run_single
+        from clis_app.graph_single import run_single
         code = run_single(plan, args, out, say)
     else:
         code = run_processes(plan, args, out, say, tty)

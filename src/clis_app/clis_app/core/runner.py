@@ -41,6 +41,9 @@ import re
 import time
 from typing import Any
 
+from clis_learner.core.checkpoint import save_checkpoint
+from clis_learner.core.config import ClisParams, load_clis_params, params_hash
+from clis_learner.core.stream import EpisodeStream
 from clis_modules.core.arbiter import Selector, selection_probs
 from clis_modules.core.decider import Decider, Percept
 from clis_modules.core.modules import (
@@ -57,10 +60,6 @@ from cr_sim.core.instants import DecisionClock
 from cr_sim.core.sim import SimParams, Simulator, load_sim_params
 from cr_sim.core.starts import draw_start
 import numpy as np
-
-from clis_learner.core.checkpoint import save_checkpoint
-from clis_learner.core.config import ClisParams, load_clis_params, params_hash
-from clis_learner.core.stream import EpisodeStream
 
 __all__ = ['CONDITIONS', 'Agent', 'run_episode', 'place_selection_map', 'JobSpec', 'JobResult',
            'run_job', 'warm_up']

@@ -18,9 +18,9 @@ from typing import NoReturn
 for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
-from clis_learner import ctrl_c  # noqa: E402
-from clis_learner.cli_help import HelpFormatter  # noqa: E402
-from clis_learner.ros_env import apply_ros_env  # noqa: E402
+from clis_app import ctrl_c  # noqa: E402
+from clis_app.cli_help import HelpFormatter  # noqa: E402
+from clis_app.ros_env import apply_ros_env  # noqa: E402
 
 EPILOG = """\
 examples:
@@ -59,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list:
     """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
-    from clis_learner import bags, compare, experiment, graph_cli, report
+    from clis_app import bags, compare, experiment, graph_cli, report
     return [experiment.register, report.register, graph_cli.register, compare.register,
             bags.register]
 
@@ -70,10 +70,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         parser.error(f'--domain-id {args.domain_id} is out of range [0, 232]')
     apply_ros_env(network=args.network, domain_id=args.domain_id)
-    previous = ctrl_c.install()                  # a Ctrl-C is remembered (clis_learner.ctrl_c)
+    previous = ctrl_c.install()                  # a Ctrl-C is remembered (clis_app.ctrl_c)
     try:
         if args.command == 'doctor':
-            from clis_learner.doctor import run_doctor
+            from clis_app.doctor import run_doctor
             code = run_doctor()
         else:
             code = int(args.func(args) or 0)

@@ -20,8 +20,8 @@ __all__ = ['summary', 'write_curve']
 def write_curve(out: Path, block: int) -> tuple[Path, Path] | None:
     """``OUT/curve.csv`` and ``OUT/curve.png`` from ``OUT/episodes.csv`` (learned episodes):
     successes per block and the share of time each module acted. None without episodes."""
-    from clis_learner import figures
-    from clis_learner.core.runner import JobResult
+    from clis_app import figures
+    from clis_app.core.runner import JobResult
     path = out / 'episodes.csv'
     if not path.is_file():
         return None

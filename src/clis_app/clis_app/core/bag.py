@@ -378,7 +378,7 @@ class BagWriter:
         self.custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
         self._fh = open(self.file, 'wb')
         self._writer = Writer(self._fh, chunk_size=chunk_size, compression=kinds[compression])
-        self._writer.start(profile='ros2', library='clis_learner')
+        self._writer.start(profile='ros2', library='clis_app')
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self.topics: dict[str, TopicInfo] = {}

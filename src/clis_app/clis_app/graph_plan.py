@@ -2,8 +2,8 @@
 
 :func:`plan_graph` lists the children of one run (:class:`GraphPlan`, in start order, the robot
 interface last), each a :class:`Child`: its ``ros2 run`` executable and the parameters ``clis
-run`` gives it. Nothing is started here (:mod:`clis_learner.supervise` starts them as
-processes, :mod:`clis_learner.graph_single` as nodes of one process).
+run`` gives it. Nothing is started here (:mod:`clis_app.supervise` starts them as
+processes, :mod:`clis_app.graph_single` as nodes of one process).
 """
 
 from __future__ import annotations
@@ -100,9 +100,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     episode that starts once that many are learned in all (``learner_node.episodes``);
     ``clis_overrides``: the CLIS keys of the run's ``--params`` files (dotted), which the nodes
     read too (the periods the simulator holds at, the arbiter's selection)."""
-    from clis_modules.core.modules import condition_periods, condition_sensors
-
     from clis_learner.core.config import load_clis_params
+    from clis_modules.core.modules import condition_periods, condition_sensors
     clis = load_clis_params(overrides=clis_overrides or None, source='--params')
     periods = condition_periods(clis, condition)
     modules = [name for name, _ in periods]
@@ -113,7 +112,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         # (its episode subscription, which the first episode waits for, once it has matched
         # the publishers of the modules and the arbiter: their first messages are in the bag)
         wait_for = [f'{m}/proposal' for m in modules] + ['arbiter/action', 'cmd_vel']
-        plan.children.append(Child('recorder', 'clis_learner', 'recorder', {
+        plan.children.append(Child('recorder', 'clis_app', 'recorder', {
             **graph, 'recorder.path': record, 'recorder.on_exists': 'number',
             'recorder.wait_for': ','.join(wait_for)}, stop_last=True))
     plan.children.append(Child('learner', 'clis_learner', 'learner', {

@@ -1,7 +1,7 @@
 """``clis experiment``: the paper's experiments (Fig. 3-5), headless, over several seeds.
 
 Each (condition, seed) is one *run*: ``episodes`` learning episodes driven by the headless
-runner (:mod:`clis_learner.core.runner`), then evaluation episodes from each start point with
+runner (:mod:`clis_app.core.runner`), then evaluation episodes from each start point with
 learning off. Runs go to parallel worker processes on this machine (``--backend process``) or
 to Ray tasks (``--backend ray``: a local Ray instance, or a cluster with ``--address``; see
 docs/scale.md); each run's results are written atomically to ``OUT/runs/`` as soon as it
@@ -37,8 +37,8 @@ from cr_sim.core.arena import load_arena
 from cr_sim.core.starts import draw_start
 import numpy as np
 
-from clis_learner.cli_help import HelpFormatter
-from clis_learner.core.runner import JobResult, JobSpec, run_job, warm_up
+from clis_app.cli_help import HelpFormatter
+from clis_app.core.runner import JobResult, JobSpec, run_job, warm_up
 
 #: Where the runs execute (``--backend``).
 BACKENDS = ('process', 'ray')
@@ -345,7 +345,7 @@ def main(args: argparse.Namespace) -> int:
     todo = longest_first(todo)
     if todo and args.backend == 'ray':
         try:
-            from clis_learner.ray_backend import run_ray
+            from clis_app.ray_backend import run_ray
             run_ray(todo, args.workers, args.address,
                     Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
                              quiet=args.quiet))
@@ -367,7 +367,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _finish(out: Path, results: list[JobResult], wall: float | None) -> int:
     """Merge the runs, draw the figures, print the table."""
-    from clis_learner import figures
+    from clis_app import figures
     summary = merge(results, out, wall_seconds=wall)
     figures.draw_all(out, results, summary)
     took = f' in {wall / 60:.1f} min' if wall is not None else ''
@@ -381,9 +381,8 @@ def _check_inputs(args: argparse.Namespace, common: dict, sim_overrides: dict) -
     """The first input that is wrong, as a message naming its flag ('' if all are right):
     --set, --sim-set, --arena and --train-start are checked on their own so that the message
     blames the flag, not a condition or a config file."""
-    from cr_sim.core.sim import load_sim_params
-
     from clis_learner.core.config import check_overrides, load_clis_params
+    from cr_sim.core.sim import load_sim_params
     try:
         check_overrides(common, '--set')           # the flag, not clis.yaml, is to blame
     except ValueError as exc:
@@ -429,7 +428,7 @@ def figures_only(out: Path) -> int:
     """``--figures-only``: merge and draw the runs that ``OUT/experiment.json`` lists, with
     the settings they were made with (the other flags are not used); writes no
     experiment.json."""
-    from clis_learner.core.runner import result_path
+    from clis_app.core.runner import result_path
     try:
         exp = json.loads((out / 'experiment.json').read_text())
     except FileNotFoundError:
