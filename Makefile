@@ -109,7 +109,7 @@ reproduce: setup
 	@$(ENV) && clis experiment --conditions $(VARIANTS) \
 	  --episodes $(REPRO_EPISODES) --seeds 5 --out $(REPRO_OUT)-variants --resume
 
-# Issue 9: the improved preset and the ablation, each change of the preset alone on the same
+# The improved preset and the ablation, each change of the preset alone on the same
 # seeds (docs/results.md); about 1 h on 2 idle cores (110 runs, ~1 CPU-min each).
 reproduce-improved: setup
 	@$(ENV) && clis experiment --preset improved --ablation --conditions innate,view,place,sync,async \

@@ -2,7 +2,7 @@
 """Wall time of the full reproduction: ``clis experiment --conditions innate,view,place,sync,async
 --episodes 1000 --seeds 10 --eval-every 0`` (50 runs, 1000 learning + 50 evaluation
 episodes each, the Fig. 4 maps and the figures), with ``--workers`` processes (default: all
-cores). The goal of issue 8: at most 6 min on 2 cores (17 min 8 s before it).
+cores).
 
     python bench/bench_reproduction.py [--seeds 10] [--episodes 1000] [--out DIR] [--json FILE]
 
@@ -39,7 +39,7 @@ def main() -> int:
     cmd = [sys.executable, '-m', 'clis_app.cli', 'experiment',
            '--conditions', 'innate,view,place,sync,async', '--episodes', str(args.episodes),
            '--seeds', str(args.seeds), '--workers', str(args.workers), '--out', str(args.out),
-           '--eval-every', '0', '--quiet']   # issue 8's workload: no periodic evaluation
+           '--eval-every', '0', '--quiet']   # the reproduction workload: no periodic evaluation
     print(' '.join(cmd[2:]), flush=True)
     t0 = time.monotonic()
     proc = subprocess.run(cmd)

@@ -1,4 +1,4 @@
-"""Bags as rosbag2 writes them (issue 24): schema texts byte for byte against golden texts, and
+"""Bags as rosbag2 writes them: schema texts byte for byte against golden texts, and
 a recorded bag opened by Foxglove's TypeScript MCAP stack, rosbags and mcap-ros2-support.
 
 The golden texts (test/golden/ros2msg/) are made by test/golden/make_schemas.py from the

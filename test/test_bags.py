@@ -1,4 +1,4 @@
-"""MCAP bags (issue 10): record, read back, independent readers, replay timing, damage, and
+"""MCAP bags: record, read back, independent readers, replay timing, damage, and
 offline learning equal to live learning. Real rclpy + Fast DDS in separate processes."""
 
 from __future__ import annotations

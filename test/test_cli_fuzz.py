@@ -1,7 +1,7 @@
 """The argument surface of `clis` (every subcommand but `run`, whose own test covers it): a
 malformed value for each option -- wrong type, out of range, unknown name, nonexistent path --
 exits 2 with one line on stderr naming the option, never a traceback, and creates nothing on
-disk (issue 23). Each case runs in an empty folder, with any output folder inside it."""
+disk. Each case runs in an empty folder, with any output folder inside it."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 9: the corrections beyond the paper (Retrace / V-trace values, the off-policy
+"""The corrections beyond the paper (Retrace / V-trace values, the off-policy
 actor-critic, the selection mixture as behaviour, normalised selection, feature-normalised
 steps), hand-computed; the periodic evaluation (Fig. 3a) and the presets."""
 
@@ -286,10 +286,10 @@ def test_experiment_preset_and_ablation_flags(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------ paper preset
 
-#: SHA-256 of the episode rows of tools/rules_digest.py's job, made with the code before issue 9
-#: (commit 7597987, ``python tools/rules_digest.py --at 7597987``): the project's rules of
-#: before the paper preset was made literal (the step of (9) on the dimensionless W, the
-#: behaviour's density at its held state) must still give bit-identical results as the named
+#: SHA-256 of the episode rows of tools/rules_digest.py's job, made with the code before the
+#: corrections (commit 7597987, ``python tools/rules_digest.py --at 7597987``): the project's
+#: rules of before the paper preset was made literal (the step of (9) on the dimensionless W,
+#: the behaviour's density at its held state) must still give bit-identical results as the named
 #: options ``policy_step = dimensionless`` and ``behaviour_state = held``, with every other
 #: option at its paper value. The last bits of a run depend on the CPU (numpy's and numba's
 #: vector exp, log and reductions, numba's code for the host), so each digest is 7597987's own

@@ -1,6 +1,6 @@
 """Ctrl-C: every `clis` command stops with one line and exit 130, and an interrupted
 `clis experiment` resumed with --resume ends with the results of an uninterrupted one, byte for
-byte (results, checkpoints and tables are written atomically; issue 23)."""
+byte (results, checkpoints and tables are written atomically)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """clis experiment --backend ray: same results as the process pool, loopback only, a killed Ray
-worker's run is retried and nothing is lost (issue 8). Each test starts a local Ray instance
+worker's run is retried and nothing is lost. Each test starts a local Ray instance
 (2 CPUs, about 10 s)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`clis experiment`, `clis report` and the figures give what was asked or stop (issue 23):
+"""`clis experiment`, `clis report` and the figures give what was asked or stop:
 --resume only with the same settings, --figures-only keeps experiment.json, no duplicate
 conditions, no meaningless bands, figures that draw their data, files with the usual mode."""
 

@@ -336,7 +336,7 @@ def test_every_message_of_the_low_rate_topics_arrives(live):
         assert mine, topic
         # and the last thing published, the next episode's start, may reach the view but not
         # the recorder: the simulator is stopped first, and a reliable writer that is gone
-        # repairs no loss (seen once under load). Such messages end the client's stream.
+        # repairs no loss. Such messages end the client's stream.
         recorded_ = set(bag[topic])
         k = next((i for i, d in enumerate(mine) if d not in recorded_), len(mine))
         assert all(d not in recorded_ for d in mine[k:]) and len(mine) - k <= 1, \

@@ -156,9 +156,9 @@ def delivered(probe: Probe, *topics: str) -> list[tuple[float, float]]:
     loses packets. A reliable stream repairs a loss when its publisher next asks for an
     acknowledgement (a heartbeat) if the message is still in the publisher's queue; until then
     it delivers nothing after the loss. When the run has learned enough `clis run` stops the
-    nodes, and what was not yet repaired is lost with them. With six busy loops on two cores a
-    run's cmd_vel reached this probe only up to 76.8 s of 240 s, and its wheels with holes.
-    So the checks judge only the episodes (never the last) whose messages all arrived.
+    nodes, and what was not yet repaired is lost with them: on a heavily loaded host a run's
+    cmd_vel may reach this probe only for its first third, and its wheels with holes. So the
+    checks judge only the episodes (never the last) whose messages all arrived.
     """
     return [(t0, t_end) for t0, t_end in episodes(probe)[:-1]
             if all(received_all(probe, topic, t0, t_end) for topic in topics)]
@@ -170,7 +170,7 @@ class Recorded:
 
     The recorder takes its messages outside an executor with a 4 MiB UDP buffer
     (recorder_node), where a Python probe in the test process lags the graph and, on a loaded
-    host, loses packets: under two busy loops a probe once had no episode of the run whole."""
+    host, loses packets: under load a probe may have no episode of the run whole."""
 
     def __init__(self, bag: Path) -> None:
         from clis_app.core.bag import BagReader

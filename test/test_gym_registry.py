@@ -1,4 +1,4 @@
-"""Gymnasium registration of ``CRNav-v0`` (issue 24, docs/gym.md): ``gymnasium.make`` and
+"""Gymnasium registration of ``CRNav-v0`` (docs/gym.md): ``gymnasium.make`` and
 ``gymnasium.make_vec`` in a fresh interpreter with no import of cr_sim first, as a
 Stable-Baselines3 or CleanRL script calls them; each registration path on its own."""
 

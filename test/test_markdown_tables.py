@@ -1,5 +1,5 @@
 """Every Markdown table the project writes renders: each row has its header's number of cells
-(a ``|`` inside a cell must be escaped, ``\\|``; issue 23). Checked on the tracked .md files,
+(a ``|`` inside a cell must be escaped, ``\\|``). Checked on the tracked .md files,
 on what `clis report` and `clis compare` print and on the benchmark table bench/run_all.py
 writes into docs/benchmarks.md."""
 

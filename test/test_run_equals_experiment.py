@@ -1,5 +1,5 @@
 """``clis run`` (the node graph) and ``clis experiment`` (the headless runner) with the same seed
-learn the same episodes (issue 26, "one implementation").
+learn the same episodes ("one implementation", docs/design.md).
 
 Both drive the same cores on the same random streams (docs/design.md §6): the simulator's
 ``(seed, 0)`` and the starts' ``(seed, 1)``, continuous over the episodes, and ONE agent stream

@@ -1,6 +1,6 @@
 """``clis run`` interrupted (Ctrl-C) at random moments, :data:`INTERRUPTS` times or more, and
 resumed each time into the same ``--out``: it ends with the uninterrupted run's results, byte
-for byte (issue 23).
+for byte.
 
 A tiny run (the innate module, :data:`EPISODES` episodes of at most 4 s of sim time) is stopped
 with SIGINT at random moments: while it starts, or up to a fifth of a second after one of its
@@ -44,8 +44,8 @@ import pytest
 EPISODES = 80
 #: the interrupted runs' clock against wall time: an episode (<= 4 s) takes >= 0.4 s, so that the
 #: test's watcher thread, which needs the GIL and a core, stops the run within a few episodes
-#: (at full speed on a host with two busy loops it once came after the run's last 64 episodes;
-#: the uninterrupted run is at full speed: lockstep, so the clock's pace changes no result)
+#: (at full speed on a loaded host it may come only after the run's last episodes; the
+#: uninterrupted run is at full speed: lockstep, so the clock's pace changes no result)
 SPEED = 10.0
 PARAMS = '/**:\n  ros__parameters:\n    episode: {time_limit: 4.0, wander_time: 1.0}\n'
 INTERRUPTS = 20                    # at least, that land in `clis run` (exit code 130)

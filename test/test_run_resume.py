@@ -1,4 +1,4 @@
-"""``clis run --resume CKPT --out SAME`` continues the run (real processes, issue 23).
+"""``clis run --resume CKPT --out SAME`` continues the run (real processes).
 
 A run of 2 short episodes, then ``--resume`` from its checkpoint into the same ``--out`` for 2
 more: the episodes are numbered 1-4 in one table (the rows written after the checkpoint are

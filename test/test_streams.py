@@ -1,4 +1,4 @@
-"""The runner's random streams, replayed elsewhere (issue 26): the agent stream as each module
+"""The runner's random streams, replayed elsewhere: the agent stream as each module
 node and the arbiter node replay it, the simulator's streams carried to another process, the
 decision instants in integer ticks."""
 

@@ -1,4 +1,4 @@
-"""Break the code on purpose and check that a test catches it (issue 25's mutation table).
+"""Break the code on purpose and check that a test catches it (a mutation table).
 
     python tools/mutate.py FILE OLD NEW [FILE OLD NEW ...] -- PYTEST_ARGS...
 

@@ -8,7 +8,7 @@ literal, commit 7597987, reproduced bit for bit by two named options) come from 
 
 and the paper preset (no option) before and after a change, ``--at REV`` against today's:
 
-    python tools/rules_digest.py --at 46e0749       # before the framework refactor (issue 26)
+    python tools/rules_digest.py --at 46e0749       # before the framework refactor
     python tools/rules_digest.py
 
 The last bits of a run depend on the CPU's vector instructions (numpy's and numba's exp, log

@@ -140,7 +140,7 @@ class LearnerNode(GraphNode):
         self._publish_params(0.0)
         # "up": the simulator's learner gate starts the first episode on this report, so it
         # waits until DDS has found a publisher of every stream (a record published before
-        # is never delivered: the arbiter's first draw, seen lost on a loaded machine)
+        # is never delivered, such as the arbiter's first draw)
         self.stream_topics = {sub.topic_name: 1 for sub in [*self.streams, self.sub_episode]}
         self.connect_deadline = time.monotonic() + self.cfg.connect_timeout
         self.connecting = self.create_timer(0.05, self._on_connecting, clock=steady)

@@ -247,7 +247,7 @@ def bounded_step(alpha_l: float, cap: float, B: np.ndarray, e: np.ndarray) -> fl
     to ``alpha delta (e . b_k) / (b_l . b_l)``: many times ``alpha delta`` when the trace holds
     states of larger feature mass than ``x_l`` (a robot that saw the goal for a while, then a
     spread RBF state: ``b . b`` 1 against 0.1), which overshoots the TD error and diverges
-    (docs/results.md, issue 9: View alone, |V| up to 1e12). Hence::
+    (View alone under the improved preset without it: |V| up to 1e12). Hence::
 
         a = min(alpha_l, cap / max_k |e . b_k|)        k over the episode's states
 
