@@ -107,7 +107,7 @@ def logs(out: Path) -> str:
 
 
 def node_pid(parent: int) -> int:
-    out = subprocess.run(['pgrep', '-P', str(parent), '-f', '/lib/clis_learner/foxglove( |$)'],
+    out = subprocess.run(['pgrep', '-P', str(parent), '-f', '/lib/clis_app/foxglove( |$)'],
                          capture_output=True, text=True).stdout.split()
     assert len(out) == 1, out
     return int(out[0])
