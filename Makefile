@@ -2,8 +2,8 @@
 #   make run    set up, then run the main job on the simulator
 #   make test   set up, then lint and run the test suite
 #   make bench  set up, then run the benchmarks (results in docs/benchmarks.md)
-#   make reproduce  docs/results.md in full (batch 1: 5 min 18 s on 2 cores without evaluation)
-#   make equivalence  the node graph against the headless runner (docs/results.md; about 1 h)
+#   make reproduce  the paper preset's claims table of docs/results.md (10 seeds x 1000 episodes)
+#   make reproduce-improved  the improved preset's claims table and its ablation
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 .DELETE_ON_ERROR:
@@ -21,20 +21,11 @@ RUN_ARGS ?=
 # make run records its run as a bag (MCAP) here; RECORD= turns it off.
 RECORD ?= bags/run-$(shell date +%Y%m%d-%H%M%S)
 
-# The full reproduction (docs/results.md): the paper preset, then the variants on seeds 0-4.
-REPRO_OUT ?= results/paper
+# The claims tables of docs/results.md: each preset on the five conditions, 10 seeds.
 REPRO_SEEDS ?= 10
 REPRO_EPISODES ?= 1000
-empty :=
-space := $(empty) $(empty)
-VARIANT_LIST := sync@common.beta=200.0,async@common.beta=200.0,async@arbiter.selection=decision,\
-  async@learner.correction=clipped,async@learner.resample=zoh,async@common.base_tick=0.25,\
-  place@place.localization.cell_size=0.2@place.localization.n_headings=2,\
-  view@learner.policy_step=scaled,\
-  sync@learner.correction=clipped@common.beta=200.0,async@learner.correction=clipped@common.beta=200.0
-VARIANTS ?= $(subst $(space),,$(strip $(VARIANT_LIST)))
 
-.PHONY: help setup run test lint bench clean reproduce reproduce-improved equivalence
+.PHONY: help setup run test lint bench clean reproduce reproduce-improved
 help:
 	@sed -n '2,6p' Makefile | sed 's/^# *//'
 
@@ -105,33 +96,17 @@ bench: setup
 
 reproduce: setup
 	@$(ENV) && clis experiment --conditions innate,view,place,sync,async \
-	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --out $(REPRO_OUT) --resume
-	@$(ENV) && clis experiment --conditions $(VARIANTS) \
-	  --episodes $(REPRO_EPISODES) --seeds 5 --out $(REPRO_OUT)-variants --resume
+	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --eval-episodes 5 --out results/paper --resume
+	@$(ENV) && python -m clis_app.claims results/paper
 
-# The improved preset and the ablation, each change of the preset alone on the same
-# seeds (docs/results.md); about 1 h on 2 idle cores (110 runs, ~1 CPU-min each).
+# The improved preset (docs/results.md), then its ablation: Async with each change alone.
 reproduce-improved: setup
-	@$(ENV) && clis experiment --preset improved --ablation --conditions innate,view,place,sync,async \
-	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --out results/improved --resume
-
-# The graph (clis run, sim time, lockstep) against the headless runner: the same conditions,
-# seeds and episode counts; clis compare prints success per block with 95% bands for both.
-EQUIV_OUT ?= results/equivalence
-EQUIV_CONDITIONS ?= view async
-EQUIV_SEEDS ?= 3
-EQUIV_EPISODES ?= 200
-equivalence: setup
-	@$(ENV) && for c in $(EQUIV_CONDITIONS); do for s in $$(seq 0 $$(($(EQUIV_SEEDS) - 1))); do \
-	  d=$(EQUIV_OUT)/graph-$$c-seed$$s; \
-	  if [ -f $$d/curve.csv ]; then echo "equivalence: $$d done"; continue; fi; rm -rf $$d; \
-	  clis run --condition $$c --seed $$s --episodes $(EQUIV_EPISODES) --out $$d || exit 1; \
-	done; done
-	@$(ENV) && clis experiment --conditions $$(echo $(EQUIV_CONDITIONS) | tr ' ' ,) \
-	  --episodes $(EQUIV_EPISODES) --seeds $(EQUIV_SEEDS) --out $(EQUIV_OUT)/headless --resume
-	@$(ENV) && for c in $(EQUIV_CONDITIONS); do \
-	  clis compare --a $(EQUIV_OUT)/graph-$$c-seed* --b $(EQUIV_OUT)/headless --condition $$c \
-	    --png $(EQUIV_OUT)/$$c.png | tee $(EQUIV_OUT)/$$c.txt; done
+	@$(ENV) && clis experiment --preset improved --conditions innate,view,place,sync,async \
+	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --eval-episodes 5 --out results/improved --resume
+	@$(ENV) && python -m clis_app.claims results/improved
+	@$(ENV) && clis experiment --preset improved --ablation --conditions async \
+	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --eval-every 100 --eval-episodes 4 \
+	  --out results/ablation --resume
 
 clean:
 	rm -rf build install log $(VENV)

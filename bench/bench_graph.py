@@ -60,7 +60,7 @@ from clis_app.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 TICK = os.sysconf('SC_CLK_TCK')
 #: Paced runs (``--speed 1``) are measured from this many wall seconds after the first
 #: commands: each node's first decisions and one full garbage collection per process (13-195 ms,
-#: 4-34 s after its start) belong to the start-up (docs/benchmarks.md)
+#: 4-34 s after its start) belong to the start-up
 PACED_WARMUP = 15.0
 
 

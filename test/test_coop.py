@@ -161,7 +161,7 @@ def test_feature_normalised_steps_move_the_value_by_alpha_delta():
 def test_bounded_steps_keep_every_value_move_within_alpha_delta():
     # a trace of five "goal not visible" states (one-hot, b.b = 1), then a spread RBF state
     # (b.b = 0.27) that reaches the goal: alpha / (b.b) alone moves V(not visible) by 12x alpha
-    # delta (the divergence of View alone, docs/results.md); bounded keeps every move <= alpha
+    # delta (how View alone diverged without it); bounded keeps every move <= alpha
     blind, spread = np.eye(4)[3], np.array([0.3, 0.3, 0.3, 0.0])
     B = np.array([blind] * 5 + [spread])  # noqa: N806
     r, ones = np.r_[np.zeros(5), 1.0], np.ones(6)

@@ -14,7 +14,7 @@ from typing import NoReturn
 
 # One BLAS thread per process, set before numpy loads: `clis experiment` runs one process per
 # core, and OpenBLAS threads on top of that oversubscribe the cores (the place module's
-# localization update was 4.5x slower with 2 workers; docs/benchmarks.md).
+# localization update was several times slower with 2 workers).
 for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 

@@ -43,7 +43,7 @@ from clis_app.core.runner import JobResult, JobSpec, run_job, warm_up
 #: Where the runs execute (``--backend``).
 BACKENDS = ('process', 'ray')
 #: Relative cost of an episode per condition, to start the longest runs first (measured per
-#: learned run of 1000 episodes, docs/benchmarks.md: Async 38-41 s, Sync 32, Place 22,
+#: learned run of 1000 episodes: Async 38-41 s, Sync 32, Place 22,
 #: View 8, Innate 7 CPU-s; the place module's localization makes the last three the slow ones).
 _COST = {'innate': 1.0, 'view': 1.0, 'place': 3.0, 'sync': 4.5, 'async': 5.5}
 

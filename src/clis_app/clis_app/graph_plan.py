@@ -22,7 +22,7 @@ REALTIME_PRIORITY = 10
 #: Under ``--realtime PRIO``, each node's SCHED_FIFO priority above PRIO, in the order of the
 #: round trip's end: the modules at PRIO, the simulator (waiting for ``cmd_vel``) one above,
 #: the arbiter two above. A proposal's arrival then preempts a module's work at the same
-#: instant, and the command's arrival preempts both (measured: docs/benchmarks.md).
+#: instant, and the command's arrival preempts both (measured by bench/bench_hops.py).
 REALTIME_ABOVE = {'sim': 1, 'arbiter': 2}
 
 

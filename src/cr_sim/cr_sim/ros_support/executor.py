@@ -5,7 +5,7 @@ rclpy's :class:`~rclpy.executors.SingleThreadedExecutor` (Jazzy) wraps every cal
 condition twice, so that the next wait returns at once and the whole wait set is rebuilt in
 Python again: a message costs two or three waits. On the sensor-to-command path of the CLIS
 graph (the simulator's ``/clock`` and readings -> module -> proposal -> arbiter -> ``cmd_vel``)
-that overhead, not the decisions, is most of each hop (docs/benchmarks.md).
+that overhead, not the decisions, is most of each hop (bench/bench_hops.py measures it).
 
 :class:`LeanExecutor` keeps rclpy's semantics (callback groups' ``can_execute`` /
 ``beginning_execution`` / ``ending_execution``, one message per ready subscription per wait,

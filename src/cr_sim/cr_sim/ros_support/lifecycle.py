@@ -18,7 +18,7 @@ A process granted the priority also asks the kernel for a CPU wake-up latency of
 long as it lives (:func:`hold_cpu_wakeup_latency`, the PM QoS request
 ``/dev/cpu_dma_latency`` that ``cyclictest`` makes by default): idle cores then poll instead of
 halting, so the next hop's wakeup does not pay a halted core's exit (on a VM, a trip through the
-hypervisor). Measured on the 2-core VM of docs/benchmarks.md, it is what brings the round trip's
+hypervisor). Measured on a 2-core VM with bench/bench_hops.py, it is what brings the round trip's
 p99 at the robot's pace under 5 ms; the price is idle cores that stay busy (power, and a VM's
 host sees them at 100%).
 
