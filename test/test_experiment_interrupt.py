@@ -30,7 +30,7 @@ def test_ctrl_c_is_one_line_and_130_for_every_command(monkeypatch, capsys, tmp_p
 
     def interrupted(*args):
         raise KeyboardInterrupt
-    monkeypatch.setattr(importlib.import_module(f'clis_learner.{module}'), name, interrupted)
+    monkeypatch.setattr(importlib.import_module(f'clis_app.{module}'), name, interrupted)
     argv = {'report': ['report', str(tmp_path)],
             'compare': ['compare', '--a', 'x', '--b', 'y', '--condition', 'view'],
             'experiment': ['experiment', '--out', str(tmp_path / 'x')],
