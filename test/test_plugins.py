@@ -378,3 +378,20 @@ def test_graph_plan_takes_the_periods_and_selection_of_the_params_files(tmp_path
         'wall.period': 1.0, 'arbiter.selection': 'decision'}).by_name('sim')
     assert sim.params['node.lockstep_periods'] == [0.25, 1.0]
     assert sim.params['node.agent_selection'] == 'decision'
+
+
+def test_the_recorded_topics_are_those_of_the_conditions_modules():
+    """The recorder subscribes from its start to the topics of its condition's modules (and
+    the live view serves them): every instance's, none of another condition's."""
+    from clis_app.recorder_node import GRAPH_TOPICS, LATCHED_TOPICS, graph_topics, latched_topics
+    params = load_clis_params()
+    assert not any(t.split('/')[0] in ('innate', 'view', 'place', 'wall') for t in GRAPH_TOPICS)
+    four = graph_topics('async:innate+view+place+wall', params)
+    for m in ('innate', 'view', 'place', 'wall'):
+        for kind in ('proposal', 'params', 'observation'):
+            assert four[f'{m}/{kind}'] == 'sensor_msgs/msg/JointState', (m, kind)
+    assert four['place/belief'] == 'nav_msgs/msg/OccupancyGrid'
+    assert set(graph_topics('view', params)) - set(GRAPH_TOPICS) == {'view/proposal',
+                                                                     'view/params'}
+    assert latched_topics('async:innate+wall') == LATCHED_TOPICS | {'innate/params',
+                                                                     'wall/params'}
