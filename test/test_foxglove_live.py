@@ -30,9 +30,11 @@ import subprocess
 import sys
 import time
 
-from clis_app.core.bag import BagReader, message_definition
+from clis_app.core.bag import BagReader, bag_topics, message_definition
 from clis_app.foxglove_node import (
     CONFIG_FILE,
+    LAYOUT_CONDITION,
+    LAYOUT_FILE,
     PATH_TOPIC,
     SUCCESS_TOPIC,
     layout_json,
@@ -62,9 +64,11 @@ LISTEN = '0A'                                                      # TCP_LISTEN
 #: foxglove.max_rate of the test's run [1/s wall]: a few messages per wall second, fewer than
 #: the sim's 20 Hz ticks even at a real-time factor of 1 (the default, 30, is for the app).
 MAX_RATE = 2.0
-#: The topics forwarded at most ``foxglove.max_rate`` per wall second (the shipped config).
+#: The topics forwarded at most ``foxglove.max_rate`` per wall second (the shipped config, and
+#: the proposals of the run's modules).
 DECIMATED = frozenset('/' + t.strip().lstrip('/') for t in ros_parameters(
-    config_dir() / CONFIG_FILE, '/**')['foxglove']['decimated'].split(',') if t.strip())
+    config_dir() / CONFIG_FILE, '/**')['foxglove']['decimated'].split(',') if t.strip()) | {
+        '/innate/proposal', '/view/proposal', '/place/proposal'}
 #: Transient-local topics (a late subscriber gets their last messages again).
 LATCHED = frozenset({'/episode', '/learner/progress', '/innate/params', '/view/params',
                      '/place/params', '/arena'})
@@ -286,12 +290,49 @@ def test_the_server_listens_on_loopback_only(live):
     assert all(a.split(':')[0] in loopback for a in addresses), addresses
 
 
-def test_the_shipped_layout_is_the_models_and_shows_served_topics(repo):
+def test_the_shipped_layout_is_the_models_and_shows_served_topics(repo, live):
     text = (repo / 'config' / 'foxglove_layout.json').read_text()
     assert text == layout_json(), 'regenerate: python -c "from clis_app.foxglove_node ' \
                                   'import layout_json; print(layout_json(), end=\'\')"'
     shown = shown_topics(json.loads(text))
     assert shown and shown <= EXPECTED, shown - EXPECTED
+    # the run's (async) layout, written into its folder by the live view
+    assert LAYOUT_CONDITION == 'async'
+    assert (live['out'] / LAYOUT_FILE).read_text() == text
+
+
+def panel(layout: object, title: str) -> dict:
+    """The panel of a layout (parsed JSON) with that title."""
+    found = []
+
+    def walk(node: object) -> None:
+        if isinstance(node, dict):
+            if node.get('type') == 'panel' and node.get('title', '').startswith(title):
+                found.append(node)
+            for v in node.values():
+                walk(v)
+        elif isinstance(node, list):
+            for v in node:
+                walk(v)
+    walk(layout)
+    assert len(found) <= 1, found
+    return found[0] if found else {}
+
+
+def test_the_layout_of_a_condition_names_each_of_its_modules():
+    """The live view's layout follows its condition: a line of Pr(i | x) for each module, in
+    the order of arbiter/selection's position, and the belief grids of their plug-ins."""
+    four = json.loads(layout_json('async:innate+view+place+wall'))
+    paths = panel(four, 'Pr(i | x)')['config']['paths']
+    assert [(p['label'], p['value']) for p in paths] == [
+        (f'Pr({m} | x)', f'/arbiter/selection.position[{k}]')
+        for k, m in enumerate(('innate', 'view', 'place', 'wall'))]
+    assert list(panel(four, "Place module's belief")['config']['topics']) == [
+        '/place/belief', '/arena']
+    two = json.loads(layout_json('sync:wall+innate'))
+    assert [p['label'] for p in panel(two, 'Pr(i | x)')['config']['paths']] == [
+        'Pr(wall | x)', 'Pr(innate | x)']
+    assert not panel(two, "Place module's belief") and '/place/belief' not in shown_topics(two)
 
 
 def test_decimated_topics_arrive_as_published_in_sim_time_order(live):
@@ -374,3 +415,26 @@ def test_every_message_of_the_low_rate_topics_arrives(live):
         assert (end, r['episode']) in events, (r['episode'], events)
     print('every message, received / recorded:',
           {t: f'{len(got[t])}/{len(bag[t])}' for t in EVERY})
+
+
+def test_a_run_of_four_modules_records_and_lays_out_each_of_them(tmp_path):
+    """``clis run`` of async:innate+view+place+wall: its bag holds every module's proposals
+    (the recorder's topics are the condition's) and the layout its live view writes into the
+    run's folder names every module."""
+    condition, four = 'async:innate+view+place+wall', ('innate', 'view', 'place', 'wall')
+    out, bag = tmp_path / 'run', tmp_path / 'bag'
+    short = tmp_path / 'short.yaml'
+    short.write_text('/**:\n  ros__parameters:\n    episode: {time_limit: 10.0}\n')
+    proc = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'run', '--out', str(out),
+                           '--quiet', '--condition', condition, '--episodes', '1', '--seed', '1',
+                           '--speed', '0', '--foxglove', str(free_port()), '--record', str(bag),
+                           '--params', str(short)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr + logs(out)
+    counts = {topic: info.count for topic, info in bag_topics(bag).items()}
+    for m in four:
+        assert counts.get(f'/{m}/proposal', 0) > 0, (m, counts)
+    assert counts.get('/place/belief', 0) > 0, counts
+    text = (out / LAYOUT_FILE).read_text()
+    assert text == layout_json(condition)
+    assert [p['label'] for p in panel(json.loads(text), 'Pr(i | x)')['config']['paths']] == [
+        f'Pr({m} | x)' for m in four]

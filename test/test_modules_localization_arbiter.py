@@ -6,11 +6,13 @@ import math
 
 from clis_modules.core.arbiter import Arbiter, ArbiterParams, selection_probs
 from clis_modules.core.localization import LocalizationParams, MarkovLocalizer
+from clis_modules.core.plugin import Floor
 import numpy as np
 import pytest
 
 LANDMARKS = np.array([[1.5, 0.75], [-0.75, 1.5], [-1.5, -0.75], [0.75, -1.5]])
 HALF = 1.5
+FLOOR = Floor.square(HALF)
 
 
 def loc_params(**kw) -> LocalizationParams:
@@ -37,11 +39,11 @@ def arc(v: float, omega: float, dt: float) -> tuple[float, float, float]:
 # ------------------------------------------------------------------------------ grid
 
 def test_grid_geometry_and_uniform_prior():
-    loc = MarkovLocalizer(loc_params(), LANDMARKS, HALF)
+    loc = MarkovLocalizer(loc_params(), LANDMARKS, FLOOR)
     assert loc.shape == (12, 20, 20) and loc.size == 4800      # the paper's "450 states"
     assert loc.xs[0] == pytest.approx(-1.425) and loc.xs[-1] == pytest.approx(1.425)
     assert loc.belief.sum() == pytest.approx(1.0) and np.ptp(loc.belief) == 0.0
-    boxed = MarkovLocalizer(loc_params(), LANDMARKS, HALF, boxes=[[-0.2, -0.2, 0.2, 0.2]])
+    boxed = MarkovLocalizer(loc_params(), LANDMARKS, FLOOR, boxes=[[-0.2, -0.2, 0.2, 0.2]])
     g = boxed.belief_grid
     assert g[:, 9, 9].sum() == 0.0 and g[:, 0, 0].sum() > 0.0
     assert boxed.belief.sum() == pytest.approx(1.0)
@@ -51,7 +53,7 @@ def test_grid_geometry_and_uniform_prior():
 
 def test_predict_shifts_each_heading_layer():
     loc = MarkovLocalizer(loc_params(trans_noise=0.0, trans_noise_min=0.0, rot_noise=0.0,
-                                     rot_noise_min_deg=0.0), LANDMARKS, HALF)
+                                     rot_noise_min_deg=0.0), LANDMARKS, FLOOR)
     p = np.zeros(loc.shape)
     p[0, 10, 10] = 0.5                # heading 0 deg: forward = +x
     p[3, 10, 10] = 0.5                # heading 90 deg: forward = +y
@@ -70,7 +72,7 @@ def test_predict_shifts_each_heading_layer():
 
 
 def test_predict_noise_conserves_mass_and_drops_impossible_poses():
-    loc = MarkovLocalizer(loc_params(), LANDMARKS, HALF)
+    loc = MarkovLocalizer(loc_params(), LANDMARKS, FLOOR)
     p = np.zeros(loc.shape)
     p[0, 10, 10] = 0.5
     p[0, 19, 5] = 0.5                 # at the east wall, facing it
@@ -83,8 +85,8 @@ def test_predict_noise_conserves_mass_and_drops_impossible_poses():
 
 
 def test_predict_wheels_equals_predict_of_integrated_arc():
-    a = MarkovLocalizer(loc_params(), LANDMARKS, HALF)
-    b = MarkovLocalizer(loc_params(), LANDMARKS, HALF)
+    a = MarkovLocalizer(loc_params(), LANDMARKS, FLOOR)
+    b = MarkovLocalizer(loc_params(), LANDMARKS, FLOOR)
     a.update(exact_bearings(0.2, 0.1, 0.5))
     b.update(exact_bearings(0.2, 0.1, 0.5))
     wb, dt = 0.16, 0.05
@@ -103,7 +105,7 @@ def test_localization_concentrates_on_true_pose(seed, start):
     """From a uniform prior, a robot driving in a plain square arena with 4 landmarks is
     localised within 1-2 cells and 1 heading bin after a few predict+update cycles."""
     rng = np.random.default_rng(seed)
-    loc = MarkovLocalizer(loc_params(), LANDMARKS, HALF)
+    loc = MarkovLocalizer(loc_params(), LANDMARKS, FLOOR)
     x, y, th = start[0], start[1], math.radians(start[2])
     errors = []
     for _ in range(5):
@@ -131,7 +133,7 @@ def test_localization_concentrates_on_true_pose(seed, start):
 
 @pytest.mark.parametrize('floor', [0.0, 1e-6])
 def test_update_recovers_from_a_wrong_confident_belief(floor):
-    loc = MarkovLocalizer(loc_params(floor=floor), LANDMARKS, HALF)
+    loc = MarkovLocalizer(loc_params(floor=floor), LANDMARKS, FLOOR)
     p = np.zeros(loc.shape)
     p[6, 2, 2] = 1.0                              # certain, and wrong (kidnapped robot)
     loc.set_belief(p)
@@ -142,12 +144,12 @@ def test_update_recovers_from_a_wrong_confident_belief(floor):
 
 
 def test_update_ignores_unseen_landmarks():
-    loc = MarkovLocalizer(loc_params(), LANDMARKS, HALF)
+    loc = MarkovLocalizer(loc_params(), LANDMARKS, FLOOR)
     loc.update(np.full(4, np.nan))
     assert np.ptp(loc.belief) == 0.0
     z = exact_bearings(0.1, 0.2, 1.0)
     z[[0, 2]] = np.nan
-    one = MarkovLocalizer(loc_params(), LANDMARKS[[1, 3]], HALF)
+    one = MarkovLocalizer(loc_params(), LANDMARKS[[1, 3]], FLOOR)
     loc.update(z)
     one.update(z[[1, 3]])
     assert np.allclose(loc.belief, one.belief)

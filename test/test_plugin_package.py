@@ -1,7 +1,7 @@
 """A module plug-in from a package of its own (docs/modules.md), with no change to the repository.
 
 A throw-away package, outside the repository, registers one module under the entry-point group
-``clis.modules`` (a pyproject and one Python file, as docs/modules.md writes it); pip installs it
+``clis.modules`` (a pyproject and one Python file, read from docs/modules.md); pip installs it
 into the venv; then ``clis experiment`` and ``clis run`` run it next to the innate module: its
 node is in the graph, proposes at its period, and it learns (its policy weights change).
 """
@@ -10,72 +10,39 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
+import re
 import subprocess
 import sys
-import textwrap
 
 import numpy as np
 import pytest
 
 pytestmark = pytest.mark.ros
 
+DOC = Path(__file__).resolve().parent.parent / 'docs' / 'modules.md'
+
+
+def doc_file(name: str) -> str:
+    """The code block of docs/modules.md that starts with the comment ``# NAME``."""
+    for block in re.findall(r'```\w*\n(.*?)```', DOC.read_text(encoding='utf-8'), re.S):
+        if block.startswith(f'# {name}\n'):
+            return block
+    raise AssertionError(f'docs/modules.md has no code block of {name}')
+
+
 NAME = 'frontir'
 PERIOD = 0.4
 CONDITION = f'async:innate+{NAME}'
-
-PYPROJECT = f"""\
-[build-system]
-requires = ["setuptools>=61"]
-build-backend = "setuptools.build_meta"
-
-[project]
-name = "clis-{NAME}"
-version = "0.0.1"
-
-[tool.setuptools]
-py-modules = ["clis_{NAME}"]
-
-[project.entry-points."clis.modules"]
-{NAME} = "clis_{NAME}:FrontIr"
-"""
-
-MODULE = textwrap.dedent(f'''\
-    """A module of one's own: the front IR rays and the destination's bearing."""
-    import math
-
-    import numpy as np
-    from cr_sim.core.params import dataclass, param
-    from clis_modules.core.features import RbfGrid, uniform_centers
-    from clis_modules.core.modules import PolicyParams, ValueParams
-    from clis_modules.core.plugin import FeatureModel, ModulePlugin
+#: the two files of the package, as docs/modules.md writes them
+PYPROJECT = doc_file('pyproject.toml')
+MODULE = doc_file(f'clis_{NAME}.py')
 
 
-    @dataclass(frozen=True)
-    class FrontIrParams:
-        period: float = param(0.01, 60.0, doc='decision period [s]')
-        n_theta: int = param(1, 100, doc='RBF centres over the bearing')
-        value: ValueParams = param(doc='value (1)(2), learned by (8)')
-        policy: PolicyParams = param(doc='policy (10), learned by (9)')
-
-
-    class FrontIr(ModulePlugin):
-        Params = FrontIrParams
-        sensors = ('camera', 'ir')
-        learned = True
-        defaults = {{'period': {PERIOD}, 'n_theta': 5,
-                    'value': {{'alpha': 0.1, 'v_init': 0.0}},
-                    'policy': {{'alpha': 0.5, 'sigma': 0.1, 'learn_sigma': False,
-                               'sigma_min': 0.02, 'sigma_max': 0.5, 'alpha_sigma': 0.0}}}}
-
-        def model(self, prm, ctx):
-            grid = RbfGrid([uniform_centers(-math.pi, math.pi, prm.n_theta, True)],
-                           [(2 * math.pi / prm.n_theta) ** 2], [True], normalize=True)
-
-            def features(p):
-                front = 1.0 if p.ir is None else float(np.min(p.ir[2:5])) / 0.5
-                return np.concatenate([grid.at(p.dest_bearing), [front]])
-            return FeatureModel(grid.n + 1, features)
-    ''')
+def test_the_documented_package_is_the_plugin_of_this_test():
+    assert f'{NAME} = "clis_{NAME}:FrontIr"' in PYPROJECT
+    assert f"'period': {PERIOD}," in MODULE
+    assert 'class FrontIrModel(FeatureModel):' in MODULE
 
 
 @pytest.fixture(scope='module')

@@ -1,3 +1,4 @@
+import configparser
 from pathlib import Path
 
 from setuptools import find_packages, setup
@@ -5,10 +6,24 @@ from setuptools import find_packages, setup
 package_name = 'clis_modules'
 HERE = Path(__file__).resolve().parent
 
+
+def own_entry_points() -> dict[str, list[str]]:
+    """The module plug-ins of the package, from the one file that lists them (which
+    clis_modules.core.plugin also reads where this metadata is not installed)."""
+    ini = configparser.ConfigParser(delimiters=('=',), interpolation=None)
+    ini.optionxform = str
+    path = HERE / package_name / 'plugins' / 'entry_points.txt'
+    if not ini.read(path, encoding='utf-8'):
+        raise FileNotFoundError(path)
+    return {group: [f'{name} = {value}' for name, value in ini[group].items()]
+            for group in ini.sections()}
+
+
 setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    package_data={package_name + '.plugins': ['entry_points.txt']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -27,12 +42,7 @@ setup(
             'arbiter = clis_modules.arbiter_node:main',
             'module = clis_modules.module_node:main',
         ],
-        # the module plug-ins (clis_modules.core.plugin; docs/modules.md)
-        'clis.modules': [
-            'innate = clis_modules.plugins.innate:Innate',
-            'view = clis_modules.plugins.view:View',
-            'place = clis_modules.plugins.place:Place',
-            'wall = clis_modules.plugins.wall:Wall',
-        ],
+        # the module plug-ins, group clis.modules (clis_modules.core.plugin; docs/modules.md)
+        **own_entry_points(),
     },
 )

@@ -10,7 +10,7 @@ in the Foxglove app (Open connection, ``ws://127.0.0.1:8765``) with the layout
 Each topic is one channel with the bag's schema (encoding ``ros2msg``, named ``pkg/msg/Type``,
 the text of :func:`clis_app.core.bag.message_definition`) and the bag's payloads: the
 serialized CDR bytes as they came off the wire, never decoded. It serves the topics the
-recorder records (:data:`clis_app.recorder_node.GRAPH_TOPICS` at start, any other topic of
+recorder records (:func:`clis_app.recorder_node.graph_topics` at start, any other topic of
 the graph as it appears, looked for every ``foxglove.discovery_period`` s; or only
 ``foxglove.topics``). The node subscribes *raw* to a topic only while a client subscribes to
 its channel (an open Foxglove costs the graph what its panels show), and always to the
@@ -78,7 +78,8 @@ from clis_app.recorder_node import EXCLUDED, graph_topics, latched_topics, messa
 from cr_sim import conversions as rconv
 
 __all__ = ['FoxgloveParams', 'FoxgloveNode', 'CONFIG_FILE', 'DEFAULT_PORT', 'HOST', 'PATH_TOPIC',
-           'SUCCESS_TOPIC', 'layout', 'layout_json', 'plan_live_view', 'main']
+           'SUCCESS_TOPIC', 'LAYOUT_CONDITION', 'LAYOUT_FILE', 'layout_modules', 'layout',
+           'layout_json', 'plan_live_view', 'main']
 
 #: The only interface the WebSocket listens on.
 HOST = '127.0.0.1'
@@ -112,10 +113,13 @@ class FoxgloveParams:
     replay: int = param(1, 1000, doc='last messages of a transient-local topic sent again to a '
                                      'client that subscribes late')
     decimated: str = param(doc='comma-separated high-rate topics forwarded at most max_rate '
-                               'per wall second (the newest message); the others: every message')
+                               'per wall second (the newest message), besides the proposals '
+                               "of the condition's modules; the others: every message")
     wait_for_client: bool = param(doc='no odom subscription until a client subscribes to the '
                                       'channel of every shown topic that has a publisher '
                                       '(clis run --foxglove-wait: the simulator waits for it)')
+    layout: str = param(doc="file the layout of the graph's condition is written to at start "
+                            "('' = none; clis run: foxglove_layout.json in its folder)")
 
 
 class FoxgloveNode(GraphNode):
@@ -143,9 +147,10 @@ class FoxgloveNode(GraphNode):
         #: decimated topic -> wall time (monotonic) of its next take; its gap between takes
         self.due: dict[str, float] = {}
         self.gap = 1.0 / self.cfg.max_rate if self.cfg.max_rate > 0 else 0.0
-        self.decimated = frozenset(self.resolve_topic_name(t.strip())
-                                   for t in self.cfg.decimated.split(',') if t.strip()) \
-            if self.gap else frozenset()
+        from clis_modules.core.plugin import parse_condition
+        proposals = [f'{m}/proposal' for m in parse_condition(self.graph.condition).modules]
+        self.decimated = frozenset(self.resolve_topic_name(t.strip()) for t in [
+            *self.cfg.decimated.split(','), *proposals] if t.strip()) if self.gap else frozenset()
         self.dirty = False                               # a client (un)subscribed
         self.channels: dict[str, Any] = {}               # topic -> foxglove.Channel
         #: topic -> its last messages (payload, log time): ``foxglove.replay`` of a latched
@@ -163,9 +168,13 @@ class FoxgloveNode(GraphNode):
         #: foxglove.wait_for_client: no odom subscription (the simulator's first episode waits
         #: for it with clis run --foxglove-wait) until a client watches (:meth:`_client_ready`)
         self.held = self.cfg.wait_for_client
+        view = layout_json(self.graph.condition, self.clis)
         self.shown = frozenset(self.resolve_topic_name(t)
-                               for t in shown_topics(json.loads(layout().to_json()))
-                               if t not in DERIVED)
+                               for t in shown_topics(json.loads(view)) if t not in DERIVED)
+        if self.cfg.layout:
+            from pathlib import Path
+            Path(self.cfg.layout).parent.mkdir(parents=True, exist_ok=True)
+            Path(self.cfg.layout).write_text(view, encoding='utf-8')
         from foxglove.websocket import ServerListener
 
         node = self
@@ -203,8 +212,10 @@ class FoxgloveNode(GraphNode):
         self.create_timer(self.cfg.poll_period, self._poll, clock=steady)
         self.clock_on_demand()                           # under sim time if told so
         self.defer_housekeeping()
-        self.get_logger().info(f'Foxglove live view on ws://{HOST}:{self.server.port} '
-                               '(layout: config/foxglove_layout.json, docs/foxglove.md)')
+        shipped = f'config/foxglove_layout.json, the layout of {LAYOUT_CONDITION}'
+        self.get_logger().info(f'Foxglove live view on ws://{HOST}:{self.server.port} (layout of '
+                               f'{self.graph.condition}: {self.cfg.layout or shipped}; '
+                               'docs/foxglove.md)')
 
     # ------------------------------------------------------------------ subscriptions
 
@@ -445,17 +456,45 @@ class FoxgloveNode(GraphNode):
         print(f'foxglove: {sum(self.counts.values())} messages served: {counts}', flush=True)
 
 
-#: The modules of the default condition (async), in the order of ``arbiter/selection``'s
-#: ``position`` (Pr(i | x)): the plot's labels.
-LAYOUT_MODULES = ('innate', 'view', 'place')
+#: The condition of the shipped layout, ``config/foxglove_layout.json``: the graph's default
+#: (``graph.condition`` of ``config/graph.yaml``).
+LAYOUT_CONDITION = 'async'
+#: The layout of the live view's condition, written into a ``clis run``'s folder.
+LAYOUT_FILE = 'foxglove_layout.json'
+#: Message type of a belief grid a module publishes (a plug-in's ``topics``).
+GRID_TYPE = 'nav_msgs/msg/OccupancyGrid'
 
 
-def layout() -> Any:
-    """The Foxglove layout of ``config/foxglove_layout.json`` (docs/foxglove.md), built with
-    the ``foxglove.layouts`` model of the SDK: left, the arena with the robot and its path, and
-    the place module's belief grid (3D panels, top view of the ``odom`` frame); right, which
-    module acts, Pr(i | x), the reward and the success rate over sim time."""
+def layout_modules(condition: str, clis: Any = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The module instances of ``condition`` in the order of ``arbiter/selection``'s
+    ``position`` (Pr(i | x), the condition's order), and the belief grids they publish
+    (``/NAME/TOPIC`` of each plug-in's ``topics`` of type :data:`GRID_TYPE`).
+
+    Parameters
+    ----------
+    condition : str
+    clis : ClisParams, optional
+        Where the instances' plug-ins are found; None: ``config/clis.yaml``.
+    """
+    from clis_modules.core.plugin import parse_condition
+    if clis is None:
+        from clis_learner.core.config import load_clis_params
+        clis = load_clis_params()
+    modules = parse_condition(condition).modules
+    beliefs = tuple(f'/{name}/{topic}' for name in modules
+                    for topic, typ in clis.module(name)[0].topics.items() if typ == GRID_TYPE)
+    return modules, beliefs
+
+
+def layout(condition: str = LAYOUT_CONDITION, clis: Any = None) -> Any:
+    """The Foxglove layout of ``condition``'s graph (docs/foxglove.md; ``clis`` as for
+    :func:`layout_modules`), built with the ``foxglove.layouts`` model of the SDK: left, the
+    arena with the robot and its path, and the belief grids its modules publish (the place
+    module's; 3D panels, top view of the ``odom`` frame); right, which module acts, Pr(i | x)
+    of each of its modules, the reward and the success rate over sim time.
+    ``config/foxglove_layout.json`` is the layout of :data:`LAYOUT_CONDITION`."""
     import foxglove.layouts as fl
+    modules, beliefs = layout_modules(condition, clis)
 
     def top_view(topics: dict[str, Any]) -> Any:
         return fl.ThreeDeeConfig(
@@ -476,12 +515,14 @@ def layout() -> Any:
                                                        line_width=0.015,
                                                        gradient=('#1e5fff40', '#1e5fffff')),
     }))
-    belief = fl.ThreeDeePanel(title="Place module's belief (most probable cell = 100)",
-                              config=top_view({
-                                  '/place/belief': fl.BaseRendererRosOccupancyGridTopicSettings(
-                                      visible=True, color_mode='map', alpha=0.8,
-                                      frame_locked=True),
-                                  '/arena': arena}))
+    owners = [b.split('/')[1] for b in beliefs]
+    belief = fl.ThreeDeePanel(
+        title=(f"{owners[0].capitalize()} module's belief" if len(owners) == 1 else
+               f"Beliefs of {', '.join(owners)}") + ' (most probable cell = 100)',
+        config=top_view({
+            **{b: fl.BaseRendererRosOccupancyGridTopicSettings(
+                visible=True, color_mode='map', alpha=0.8, frame_locked=True) for b in beliefs},
+            '/arena': arena}))
 
     def stamped(value: str, label: str) -> Any:
         return fl.PlotSeries(value=value, label=label, enabled=True,
@@ -496,7 +537,7 @@ def layout() -> Any:
                                          timestamp_method='headerStamp')]))
     probs = fl.PlotPanel(title='Pr(i | x) at each draw', config=fl.PlotConfig(
         paths=[stamped(f'/arbiter/selection.position[{k}]', f'Pr({m} | x)')
-               for k, m in enumerate(LAYOUT_MODULES)],
+               for k, m in enumerate(modules)],
         min_y_value=0.0, max_y_value=1.0, show_legend=True))
     reward = fl.PlotPanel(title='Reward', config=fl.PlotConfig(
         paths=[stamped('/reward.vector.x', 'reward of the tick'),
@@ -510,9 +551,10 @@ def layout() -> Any:
         return fl.SplitContainer(direction=direction, items=[
             fl.SplitItem(proportion=p, content=c) for p, c in items])
 
+    left = split('column', (0.6, scene), (0.4, belief)) if beliefs else scene
     return fl.Layout(content=split(
         'row',
-        (0.55, split('column', (0.6, scene), (0.4, belief))),
+        (0.55, left),
         (0.45, split('column', (0.2, acting), (0.3, probs), (0.25, reward), (0.25, success)))))
 
 
@@ -536,11 +578,11 @@ def shown_topics(layout: object) -> frozenset[str]:
     return frozenset(shown)
 
 
-def layout_json() -> str:
-    """:func:`layout` as the text of ``config/foxglove_layout.json`` (indented, one newline at
-    the end)."""
+def layout_json(condition: str = LAYOUT_CONDITION, clis: Any = None) -> str:
+    """:func:`layout` as the text of a layout file (indented, one newline at the end): for
+    :data:`LAYOUT_CONDITION`, ``config/foxglove_layout.json``."""
     import json
-    return json.dumps(json.loads(layout().to_json()), indent=2) + '\n'
+    return json.dumps(json.loads(layout(condition, clis).to_json()), indent=2) + '\n'
 
 
 def plan_live_view(plan: Any, args: Any) -> str | None:
@@ -553,9 +595,10 @@ def plan_live_view(plan: Any, args: Any) -> str | None:
     if getattr(args, 'single_process', False):
         return '--foxglove runs the live view as a process of its own: not with --single-process'
     graph = {k: v for k, v in plan.children[0].params.items() if k.startswith('graph.')}
+    from pathlib import Path
     plan.children.insert(0, Child('foxglove', 'clis_app', 'foxglove', {
-        **graph, 'foxglove.port': int(args.foxglove), 'foxglove.block': int(args.block)},
-        stop_last=True))
+        **graph, 'foxglove.port': int(args.foxglove), 'foxglove.block': int(args.block),
+        'foxglove.layout': str(Path(args.out).resolve() / LAYOUT_FILE)}, stop_last=True))
     # the simulator's first episode also waits for the view's subscription of the episode
     # events (made once it has discovered the simulator): a short run on a fast host could
     # otherwise end before the view had discovered it, and show nothing of the robot (seen in

@@ -50,7 +50,8 @@ __all__ = ['RecorderParams', 'RecorderNode', 'GRAPH_TOPICS', 'LATCHED_TOPICS', '
            'latched_topics', 'qos_to_dict',
            'qos_from_dict', 'message_class', 'main']
 
-#: Topics of the graph and their types (relative names; docs/graph.md, docs/robot.md).
+#: Topics of the graph and their types (relative names; docs/graph.md, docs/robot.md), but
+#: those of the module instances, which depend on the condition (:func:`graph_topics`).
 GRAPH_TOPICS = {
     '/clock': 'rosgraph_msgs/msg/Clock',
     'ir': 'sensor_msgs/msg/LaserScan',
@@ -64,27 +65,26 @@ GRAPH_TOPICS = {
     'markers': 'visualization_msgs/msg/MarkerArray',
     'cmd_vel': 'geometry_msgs/msg/TwistStamped',
     'wheels_cmd': 'sensor_msgs/msg/JointState',
-    **{f'{m}/proposal': 'sensor_msgs/msg/JointState' for m in ('innate', 'view', 'place')},
-    **{f'{m}/params': 'sensor_msgs/msg/JointState' for m in ('innate', 'view', 'place')},
-    'place/belief': 'nav_msgs/msg/OccupancyGrid',
     'arbiter/selection': 'sensor_msgs/msg/JointState',
     'arbiter/action': 'sensor_msgs/msg/JointState',
     'learner/progress': 'diagnostic_msgs/msg/DiagnosticArray',
 }
-#: Topics published transient local (their last messages reach a late subscriber).
-LATCHED_TOPICS = frozenset({'episode', 'arena', 'innate/params', 'view/params', 'place/params',
-                            'learner/progress'})
+#: Topics published transient local (their last messages reach a late subscriber), but the
+#: module instances' ``params`` (:func:`latched_topics`).
+LATCHED_TOPICS = frozenset({'episode', 'arena', 'learner/progress'})
 
 
 def graph_topics(condition: str, clis: Any) -> dict[str, str]:
-    """:data:`GRAPH_TOPICS` with the topics of ``condition``'s module instances (``proposal``,
-    ``params`` and what each plug-in declares in its ``topics``)."""
+    """:data:`GRAPH_TOPICS` with the topics of ``condition``'s module instances, in its order
+    (``proposal``, ``params``, ``observation`` when there are several, and what each plug-in
+    declares in its ``topics``)."""
     from clis_modules.core.plugin import parse_condition
     topics = dict(GRAPH_TOPICS)
-    for name in parse_condition(condition).modules:
+    modules = parse_condition(condition).modules
+    for name in modules:
         plugin = clis.module(name)[0]
         topics[f'{name}/proposal'] = topics[f'{name}/params'] = 'sensor_msgs/msg/JointState'
-        if len(parse_condition(condition).modules) > 1:
+        if len(modules) > 1:
             topics[f'{name}/observation'] = 'sensor_msgs/msg/JointState'
         topics.update({f'{name}/{t}': typ for t, typ in plugin.topics.items()})
     return topics

@@ -62,6 +62,7 @@ kidnapped robot, or ``floor = 0``) restarts from the reading alone.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 from cr_sim.core.kernels import njit
 from cr_sim.core.params import dataclass, param
@@ -70,6 +71,9 @@ from cr_sim.core.ufunc_loops import LOOPS, exp_into
 from cr_sim.core.ufunc_loops import pairwise_sum as _pairwise_sum
 import numpy as np
 from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from clis_modules.core.plugin import Floor
 
 __all__ = ['LocalizationParams', 'MarkovLocalizer']
 
@@ -108,9 +112,8 @@ class MarkovLocalizer:
     params : LocalizationParams
     landmarks_xy : array_like, shape (M, 2)
         Landmark positions [m], in the order of the bearings given to :meth:`update`.
-    half_size : float or tuple of float
-        The floor: ``[-half_size, half_size]^2`` [m], or any rectangle ``(xmin, ymin, xmax,
-        ymax)`` (:meth:`cr_sim.core.arena.Arena.floor`).
+    floor : Floor
+        The floor [m] (:class:`clis_modules.core.plugin.Floor`).
     boxes : array_like, shape (K, 4), optional
         Obstacles as ``(xmin, ymin, xmax, ymax)`` [m]: cells whose centre is inside are never
         occupied.
@@ -129,17 +132,12 @@ class MarkovLocalizer:
         Heading-bin centres [rad], ``k 2 pi / n_headings``.
     """
 
-    def __init__(self, params: LocalizationParams, landmarks_xy: ArrayLike, half_size: float,
+    def __init__(self, params: LocalizationParams, landmarks_xy: ArrayLike, floor: Floor,
                  boxes: ArrayLike | None = None) -> None:
         self.params = params
         self.landmarks_xy = np.asarray(landmarks_xy, dtype=np.float64).reshape(-1, 2)
-        if np.ndim(half_size) == 0:
-            self.half_size = float(half_size)
-            x0 = y0 = -self.half_size
-            x1 = y1 = self.half_size
-        else:                                   # a rectangle (xmin, ymin, xmax, ymax)
-            self.half_size = None
-            x0, y0, x1, y1 = (float(v) for v in half_size)
+        self.half_size = floor.half             # None: not a square centred at the origin
+        x0, y0, x1, y1 = (float(v) for v in (floor.xmin, floor.ymin, floor.xmax, floor.ymax))
         n = max(1, int(round((x1 - x0) / params.cell_size)))
         self.cell = (x1 - x0) / n
         ny = max(1, int(round((y1 - y0) / self.cell)))

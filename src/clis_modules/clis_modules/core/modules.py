@@ -35,8 +35,12 @@ second is discounted alike by every module and all optimise the same objective.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+import copy
 import dataclasses
+import difflib
 import math
+import typing
 from typing import Any, Protocol
 
 from cr_sim.core.params import ConfigError, build, build_fields, dataclass, load_params, param
@@ -47,6 +51,7 @@ from clis_modules.core.arbiter import ArbiterParams
 from clis_modules.core.plugin import (
     PAPER_CONDITIONS,
     FeatureModel,
+    Floor,
     ModuleContext,
     ModulePlugin,
     Percept,
@@ -59,7 +64,8 @@ from clis_modules.core.value import LinearValue, gamma_i
 
 __all__ = [
     'CONDITIONS', 'MODULE_NAMES', 'CommonParams', 'ValueParams', 'PolicyParams',
-    'ModuleSetParams', 'load_module_params', 'ModuleCore', 'build_module',
+    'ModuleSetParams', 'load_module_params', 'instance_defaults', 'merge_section',
+    'ModuleCore', 'build_module',
     'speed_limit', 'module_gamma', 'condition_periods', 'condition_sensors', 'make_modules',
     'make_module', 'arena_map',
 ]
@@ -118,8 +124,10 @@ class ModuleSetParams:
 
     Besides its fields, every section named in ``modules`` or after a registered plug-in is a
     module instance: ``plugin`` (default: the section's name) and that plug-in's parameters,
-    validated at load. :meth:`module` gives an instance's plug-in and parameters (those of the
-    plug-in's ``defaults`` when the file has no section for it); ``params.NAME`` its parameters.
+    validated at load. A section may give only some of them: it is merged, key by key, over
+    its plug-in's defaults (:func:`instance_defaults`). :meth:`module` gives an instance's
+    plug-in and parameters (those of the plug-in's ``defaults`` when the file has no section
+    for it); ``params.NAME`` its parameters.
     """
 
     common: CommonParams = param(doc='section common')
@@ -147,7 +155,7 @@ class ModuleSetParams:
             if name not in listed and name not in registered:
                 raise ConfigError(f'unknown key {prefix}{name}; allowed keys: '
                                   + ', '.join(sorted(own | set(listed))))
-            instances.append((name, *_instance(name, section, prefix + name)))
+            instances.append((name, *_instance(name, section, prefix + name, mapping)))
         obj = build_fields(cls, {k: v for k, v in mapping.items() if k in own}, where)
         return dataclasses.replace(obj, instances=tuple(instances))
 
@@ -181,8 +189,9 @@ class ModuleSetParams:
         raise AttributeError(f'{type(self).__name__} has no field or module instance {name!r}')
 
 
-def _instance(name: str, section: Any, where: str) -> tuple[str, Any]:
-    """``(plugin name, parameters)`` of the instance section ``section``."""
+def _instance(name: str, section: Any, where: str, mapping: Mapping[str, Any]
+              ) -> tuple[str, Any]:
+    """``(plugin name, parameters)`` of the instance section ``section`` of ``mapping``."""
     if not hasattr(section, 'items'):
         raise ConfigError(f'{where} must be a mapping (a module instance: plugin and parameters)')
     section = dict(section)
@@ -191,7 +200,50 @@ def _instance(name: str, section: Any, where: str) -> tuple[str, Any]:
         plugin = get_plugin(plugin_name)
     except ValueError as exc:
         raise ConfigError(f'{where}.plugin: {exc}') from None
-    return plugin_name, build(plugin.Params, section, where=where)
+    merged = merge_section(plugin.Params, instance_defaults(plugin, name, mapping), section,
+                           where)
+    return plugin_name, build(plugin.Params, merged, where=where)
+
+
+def instance_defaults(plugin: ModulePlugin, name: str, mapping: Mapping[str, Any]) -> dict:
+    """What the section of instance ``name`` of ``plugin`` is merged over: the plug-in's
+    ``defaults``, and over them, for an instance not named after its plug-in, the section of
+    ``mapping`` that is (an instance of that plug-in): in ``config/clis.yaml``,
+    ``view_fast: {plugin: view, period: 0.25}`` is the ``view`` section with another period."""
+    base = copy.deepcopy(dict(plugin.defaults or {}))
+    same = mapping.get(plugin.name) if name != plugin.name else None
+    if hasattr(same, 'items') and same.get('plugin', plugin.name) == plugin.name:
+        own = {k: copy.deepcopy(v) for k, v in same.items() if k != 'plugin'}
+        base = merge_section(plugin.Params, base, own, plugin.name)
+    return base
+
+
+def merge_section(cls: type, base: Mapping[str, Any], section: Mapping[str, Any],
+                  where: str) -> dict:
+    """``section`` over ``base``, key by key (nested sections of ``cls``'s dataclass fields
+    merged likewise); the values are checked by :func:`cr_sim.core.params.build` after.
+
+    Raises
+    ------
+    ConfigError
+        A key of ``section`` that is not a field of ``cls``, naming the nearest one.
+    """
+    fields = [f.name for f in dataclasses.fields(cls)]
+    hints = typing.get_type_hints(cls)
+    out = dict(base)
+    for key, value in section.items():
+        if key not in fields:
+            near = difflib.get_close_matches(str(key), fields, n=1, cutoff=0.6)
+            hint = f'; did you mean {where}.{near[0]}?' if near else ''
+            raise ConfigError(f'unknown key {where}.{key}{hint} (allowed keys: '
+                              f'{", ".join(sorted(fields))})')
+        sub = hints[key]
+        if dataclasses.is_dataclass(sub) and isinstance(value, Mapping) \
+                and isinstance(out.get(key), Mapping):
+            out[key] = merge_section(sub, out[key], value, f'{where}.{key}')
+        else:
+            out[key] = value
+    return out
 
 
 def load_module_params(path: str | None = None, overrides: dict | None = None
@@ -272,7 +324,8 @@ class ModuleCore:
     policy_params : PolicyParams, optional
         ``None`` for a fixed policy (``learned`` is False).
     model : FeatureModel, optional
-        The plug-in's model, for its hooks (:mod:`clis_modules.core.plugin`).
+        The plug-in's model, for its hooks (:mod:`clis_modules.core.plugin`); None: no
+        hooks.
     plugin : str
         The plug-in's name.
     sensors : tuple of str
@@ -282,8 +335,10 @@ class ModuleCore:
     ----------
     learned : bool
         Whether the policy is learned by (9) (view, place) or fixed (innate).
+    model : FeatureModel or None
     on_motion, on_sense, peek_fn, at_pose, display : callable or None
-        The model's hooks (``motion``, ``sense``, ``peek``, ``at_pose``, ``display``).
+        The model's hooks ``motion``, ``sense``, ``peek``, ``at_pose`` and ``display`` where
+        it overrides them (:meth:`FeatureModel.has`), else None.
     state : object
         The model's state (the place module's ``MarkovLocalizer``), for inspection.
     """
@@ -306,14 +361,17 @@ class ModuleCore:
         self.value_params = value_params
         self.policy_params = policy_params
         self.learned = policy_params is not None
-        model = model or FeatureModel(n, feature_fn)
-        self._reset = model.reset
-        self.on_motion = model.motion
-        self.on_sense = model.sense
-        self.peek_fn = model.peek
-        self.at_pose = model.at_pose
-        self.display = model.display
-        self.state = model.state
+        self.model = model
+
+        def hook(name: str) -> Any:
+            return getattr(model, name) if model is not None and model.has(name) else None
+        self._reset = hook('reset')
+        self.on_motion = hook('motion')
+        self.on_sense = hook('sense')
+        self.peek_fn = hook('peek')
+        self.at_pose = hook('at_pose')
+        self.display = hook('display')
+        self.state = None if model is None else model.state
 
     def __repr__(self) -> str:
         return (f'ModuleCore({self.name!r}, plugin={self.plugin!r}, period={self.period}, '
@@ -411,17 +469,22 @@ def _checked(value: ArrayLike, shape: tuple[int, ...], what: str) -> np.ndarray:
 # ------------------------------------------------------------------------------ factories
 
 def build_module(name: str, plugin: ModulePlugin, prm: Any, common: CommonParams,
-                 period: float | None, landmarks_xy: ArrayLike, half_size: float,
+                 period: float | None, landmarks_xy: ArrayLike, floor: Floor | float,
                  boxes: ArrayLike | None = None) -> ModuleCore:
     """Module instance ``name`` of ``plugin`` with parameters ``prm`` and period ``period``
     (default ``prm.period``): the plug-in's features and hooks, with the framework's value
     (1)(2), Gaussian policy (10), discount (11) and speed limit (docs/design.md §3)."""
     tau = float(prm.period if period is None else period)
     v_max = speed_limit(common, tau)
+    if not isinstance(floor, Floor):
+        floor = Floor.square(floor)
     ctx = ModuleContext(name, tau, v_max, common,
-                        np.asarray(landmarks_xy, dtype=np.float64), half_size,
+                        np.asarray(landmarks_xy, dtype=np.float64), floor,
                         None if boxes is None else np.asarray(boxes, dtype=np.float64))
     fm = plugin.model(prm, ctx)
+    if not isinstance(fm, FeatureModel):
+        raise TypeError(f'module plug-in {plugin.name!r}: model() must return a FeatureModel, '
+                        f'got {type(fm).__name__}')
     n = int(fm.n)
     W = np.zeros((2, n)) if fm.W is None else np.asarray(fm.W, dtype=np.float64)  # noqa: N806
     learned = bool(plugin.learned)
@@ -433,15 +496,15 @@ def build_module(name: str, plugin: ModulePlugin, prm: Any, common: CommonParams
         model=fm, plugin=plugin.name, sensors=plugin.sensors)
 
 
-def arena_map(arena: Any) -> tuple[np.ndarray, float, np.ndarray]:
+def arena_map(arena: Any) -> tuple[np.ndarray, Floor, np.ndarray]:
     """What the modules know of an arena (``cr_sim.core.arena.Arena``): landmark positions
-    (M, 2), the floor's half side [m], obstacle boxes (K, 4)."""
+    (M, 2), the floor, obstacle boxes (K, 4)."""
     landmarks = np.array([(lm.x, lm.y) for lm in arena.landmarks], dtype=np.float64)
-    return landmarks, arena.floor(), np.array(arena.box_tuples(), dtype=np.float64)
+    return landmarks, Floor.of(arena), np.array(arena.box_tuples(), dtype=np.float64)
 
 
 def make_modules(params: ModuleParamsLike, condition: str, landmarks_xy: ArrayLike,
-                 half_size: float, boxes: ArrayLike | None = None) -> list[ModuleCore]:
+                 floor: Floor | float, boxes: ArrayLike | None = None) -> list[ModuleCore]:
     """The modules of one condition (paper Sec. IV, docs/design.md §3).
 
     Parameters
@@ -454,8 +517,9 @@ def make_modules(params: ModuleParamsLike, condition: str, landmarks_xy: ArrayLi
         that period's speed limit and gamma), ``'async'`` (all three, own periods).
     landmarks_xy : array_like, shape (M, 2)
         Landmark positions [m], in the order of the observed bearings.
-    half_size : float
-        Half the side of the floor [m].
+    floor : Floor or float
+        The floor (:func:`arena_map`), or the half side [m] of a square one centred at the
+        origin (:meth:`Floor.square`).
     boxes : array_like, shape (K, 4), optional
         Obstacles ``(xmin, ymin, xmax, ymax)`` [m] (the place module's grid excludes them).
 
@@ -464,14 +528,13 @@ def make_modules(params: ModuleParamsLike, condition: str, landmarks_xy: ArrayLi
     list of ModuleCore
         In the condition's order.
     """
-    return [make_module(params, name, period, landmarks_xy, half_size, boxes)
+    return [make_module(params, name, period, landmarks_xy, floor, boxes)
             for name, period in condition_periods(params, condition)]
 
 
 def make_module(params: ModuleParamsLike, name: str, period: float, landmarks_xy: ArrayLike,
-                half_size: float, boxes: ArrayLike | None = None) -> ModuleCore:
+                floor: Floor | float, boxes: ArrayLike | None = None) -> ModuleCore:
     """Module instance ``name``, with decision period ``period`` (:func:`condition_periods`);
     the other arguments as for :func:`make_modules`."""
     plugin, prm = params.module(name)
-    return build_module(name, plugin, prm, params.common, period, landmarks_xy, half_size,
-                        boxes)
+    return build_module(name, plugin, prm, params.common, period, landmarks_xy, floor, boxes)

@@ -17,26 +17,28 @@ all on one :class:`~clis_modules.core.modules.ModuleCore`. A *plug-in* provides 
 ``Params``          its frozen parameter dataclass (``cr_sim.core.params``: ``dataclass``,
                     ``param``), with ``period`` [s], and ``value`` (:class:`ValueParams`) and
                     ``policy`` (:class:`PolicyParams`) sections where learned
-``defaults``        the section used when the config file has none (None: it must have one)
+``defaults``        the values of its section the config file may leave out (None: none)
 ``sensors``         the robot topics it reads, of :data:`SENSORS`
 ``topics``          what its node publishes besides ``~/proposal`` (``{'belief': type}``)
 ``learned``         whether (9) learns its policy
-``model(...)``      its :class:`FeatureModel`: ``features(percept) -> b`` of ``n`` features,
-                    the initial ``W`` (2, n) (zeros if None), its sigma, and optional hooks
+``model(...)``      its :class:`FeatureModel`, an object: ``n`` features ``features(percept)``,
+                    the initial ``W`` (2, n) (zeros if None), its sigma, and the hooks
 ==================  =============================================================================
 
-The hooks of a module with a state of its own (the place module's Markov localization, paper
-III-D): ``reset()`` at an episode start, ``motion(dx, dy, dtheta)`` with the odometry since
-the previous decision (the decider integrates the wheel readings for a module that reads
-``wheels`` and has this hook) then ``sense(percept)`` before the features of a decision,
-``peek(odometry, percept) -> b`` for the features the next ``motion``/``sense`` would give
-without changing the state (the learner's ``behaviour_state: resampled``; ``odometry`` None
-before the first decision of an episode), ``at_pose(x, y, heading)`` to put the state where it
-is once the robot knows it stands at that pose (the place-selection map of Fig. 4; ``reset``
-undoes it) and ``display() -> (grid, cell, origin)`` for the belief a module node publishes
-(nav_msgs/OccupancyGrid). Hooks with a state are bound methods of the objects holding it (not
-closures): a copy of a module (``copy.deepcopy``, a module node's warm-up) then copies the state
-once, shared by the copy's hooks.
+A :class:`FeatureModel` is a subclass that overrides :meth:`~FeatureModel.features` and, for a
+module with a state of its own (the place module's Markov localization, paper III-D), the
+hooks it needs; each hook of the base class does nothing (:meth:`~FeatureModel.peek`: the
+features), and the framework calls only those a model overrides (:meth:`FeatureModel.has`):
+``reset()`` at an episode start, ``motion(dx, dy, dtheta)`` with the odometry since the
+previous decision (the decider integrates the wheel readings for a model with this hook, and a
+module node subscribes to ``wheels`` for it) then ``sense(percept)`` before the features of a
+decision, ``peek(odometry, percept) -> b`` for the features the next ``motion``/``sense`` would
+give without changing the state (the learner's ``behaviour_state: resampled``; ``odometry``
+None before the first decision of an episode), ``at_pose(x, y, heading)`` to put the state
+where it is once the robot knows it stands at that pose (the place-selection map of Fig. 4;
+``reset`` undoes it) and ``display() -> (grid, cell, origin)`` for the belief a module node
+publishes (nav_msgs/OccupancyGrid). The state is the model's (its attributes): a copy of a
+module (``copy.deepcopy``, a module node's warm-up) copies it with the model.
 
 Plug-ins are found under the entry-point group :data:`ENTRY_POINT_GROUP` (``clis.modules``),
 as Gymnasium's third-party environments are: a package declares, in its ``pyproject.toml``::
@@ -45,7 +47,11 @@ as Gymnasium's third-party environments are: a package declares, in its ``pyproj
     wall2 = "my_package.wall2:Wall2"
 
 and once it is installed, ``clis experiment --conditions async:innate+wall2`` runs it. The
-paper's three modules and ``wall`` are plug-ins of ``clis_modules`` registered the same way.
+paper's three modules and ``wall`` are entry points of ``clis_modules`` like any other: its
+``setup.py`` reads them from :data:`OWN_ENTRY_POINTS`, the file ``plugins/entry_points.txt``
+of the package (the format of a distribution's ``entry_points.txt``). Code run from a source
+tree without the package's metadata (``PYTHONPATH=src/...``, e.g. a commit's code from ``git
+archive``) reads that file instead, so there is one list either way (:func:`plugins`).
 
 Conditions (paper IV): ``TIMING:MODULE+MODULE...``, with ``TIMING`` ``async`` (each module on
 its own period) or ``sync`` (all on the slowest), parsed by :func:`parse_condition` only;
@@ -54,20 +60,29 @@ its own period) or ``sync`` (all on the slowest), parsed by :func:`parse_conditi
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from importlib.metadata import entry_points
+from collections.abc import Mapping
+import configparser
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, distribution, entry_points
+import importlib.resources
 from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['ENTRY_POINT_GROUP', 'SENSORS', 'TIMINGS', 'PAPER_CONDITIONS', 'Percept',
-           'ModuleContext', 'FeatureModel', 'ModulePlugin', 'plugins', 'get_plugin',
-           'Condition', 'parse_condition', 'condition_order', 'solo_condition']
+__all__ = ['ENTRY_POINT_GROUP', 'OWN_ENTRY_POINTS', 'SENSORS', 'TIMINGS', 'PAPER_CONDITIONS',
+           'HOOKS', 'Percept', 'Floor', 'ModuleContext', 'FeatureModel', 'ModulePlugin',
+           'plugins', 'get_plugin', 'read_entry_points', 'Condition', 'parse_condition',
+           'condition_order', 'solo_condition']
 
 #: Entry-point group of the module plug-ins.
 ENTRY_POINT_GROUP = 'clis.modules'
+#: The file of ``clis_modules`` that lists its own plug-ins (``[clis.modules]`` ``name =
+#: module:attr`` lines): what its ``setup.py`` registers, and what :func:`plugins` reads where
+#: the package's metadata is not installed.
+OWN_ENTRY_POINTS = ('clis_modules.plugins', 'entry_points.txt')
+#: The hooks of a :class:`FeatureModel`.
+HOOKS = ('reset', 'motion', 'sense', 'peek', 'at_pose', 'display')
 #: What a module may read of the robot (the robot interface's topics, docs/robot.md).
 SENSORS = ('camera', 'ir', 'wheels')
 #: How the modules of a condition are timed (paper IV).
@@ -113,6 +128,43 @@ class Percept(NamedTuple):
 
 
 @dataclass(frozen=True)
+class Floor:
+    """The arena's floor, a rectangle [m] (``cr_sim.core.arena.Arena.bounds``); the walls are
+    its border.
+
+    Attributes
+    ----------
+    xmin, ymin, xmax, ymax : float
+        Its west, south, east and north sides [m].
+    """
+
+    xmin: float
+    ymin: float
+    xmax: float
+    ymax: float
+
+    def __post_init__(self) -> None:
+        if not (self.xmin < self.xmax and self.ymin < self.ymax):
+            raise ValueError(f'a floor needs xmin < xmax and ymin < ymax, got {self}')
+
+    @classmethod
+    def square(cls, half: float) -> Floor:
+        """The square ``[-half, half]^2`` centred at the origin (the paper's arena)."""
+        half = float(half)
+        return cls(-half, -half, half, half)
+
+    @classmethod
+    def of(cls, arena: Any) -> Floor:
+        """The floor of a ``cr_sim.core.arena.Arena`` (its ``bounds``)."""
+        return cls(*(float(v) for v in arena.bounds))
+
+    @property
+    def half(self) -> float | None:
+        """Half the side of a square centred at the origin; None for any other rectangle."""
+        return self.xmax if self.xmin == self.ymin == -self.xmax == -self.ymax else None
+
+
+@dataclass(frozen=True)
 class ModuleContext:
     """What a plug-in's :meth:`ModulePlugin.model` may use besides its own parameters.
 
@@ -127,9 +179,8 @@ class ModuleContext:
     common : CommonParams
     landmarks_xy : np.ndarray, shape (M, 2)
         Landmark positions [m], in the order of ``Percept.landmark_bearings``.
-    half_size : float or tuple of float
-        Half the side of the floor [m], or the half sides ``(x, y)`` of a rectangular one
-        (``Arena.floor()``).
+    floor : Floor
+        The floor.
     boxes : np.ndarray, shape (K, 4), optional
         Obstacles ``(xmin, ymin, xmax, ymax)`` [m].
     """
@@ -139,44 +190,81 @@ class ModuleContext:
     v_max: float
     common: Any
     landmarks_xy: np.ndarray
-    half_size: float | tuple[float, float]
+    floor: Floor
     boxes: np.ndarray | None = None
 
 
-@dataclass
 class FeatureModel:
-    """A module's state representation, as its plug-in builds it (module docstring).
+    """A module's state representation, as its plug-in builds it (module docstring): subclass
+    it, override :meth:`features` and the hooks the module needs.
 
-    Attributes
+    Parameters
     ----------
     n : int
         Number of features.
-    features : callable
-        ``features(percept) -> b``, a fresh float64 array of shape (n,).
     W : array_like, shape (2, n), optional
         Initial policy weights (mean ``v_max W b``); None = zeros. A fixed policy keeps them.
     sigma : float, optional
         Policy std [m/s]; None = ``policy.sigma`` of a learned module's parameters.
     sigma_blind : float, optional
         Std where the last feature is 1 (the *not visible* feature of the innate module).
-    reset, motion, sense, peek, at_pose, display : callable, optional
-        The hooks of a module with a state of its own (module docstring).
-    state : object, optional
-        That state, for inspection (the place module's ``MarkovLocalizer``).
+
+    Attributes
+    ----------
+    state : object
+        The module's own state, for inspection (the place module's ``MarkovLocalizer``);
+        None by default.
     """
 
-    n: int
-    features: Callable[[Percept], np.ndarray]
-    W: ArrayLike | None = None
-    sigma: float | None = None
-    sigma_blind: float | None = None
-    reset: Callable[[], None] | None = None
-    motion: Callable[[float, float, float], None] | None = None
-    sense: Callable[[Percept], None] | None = None
-    peek: Callable[[tuple | None, Percept], np.ndarray] | None = None
-    at_pose: Callable[[float, float, float], None] | None = None
-    display: Callable[[], tuple] | None = None
-    state: Any = field(default=None)
+    state: Any = None
+
+    def __init__(self, n: int, W: ArrayLike | None = None, sigma: float | None = None,  # noqa: N803
+                 sigma_blind: float | None = None) -> None:
+        self.n = int(n)
+        self.W = W
+        self.sigma = sigma
+        self.sigma_blind = sigma_blind
+
+    def features(self, percept: Percept) -> np.ndarray:
+        """``b``, a fresh float64 array of shape (n,), of what the module reads now (and of
+        its state)."""
+        raise NotImplementedError(f'{type(self).__name__}.features')
+
+    def reset(self) -> None:
+        """Episode start (default: nothing)."""
+
+    def motion(self, dx: float, dy: float, dtheta: float) -> None:
+        """The odometry since the previous decision, in the robot frame at that decision
+        ([m], [m], [rad]); called before :meth:`sense` at each decision but the first of an
+        episode (default: nothing, and no odometry is integrated for the module)."""
+
+    def sense(self, percept: Percept) -> None:
+        """The readings at a decision, before its :meth:`features` (default: nothing)."""
+
+    def peek(self, odometry: tuple[float, float, float] | None,
+             percept: Percept) -> np.ndarray:
+        """The features the next :meth:`motion` (``odometry``; None before the first decision
+        of an episode) and :meth:`sense` would give, the state left as it is (default:
+        :meth:`features`)."""
+        return self.features(percept)
+
+    def at_pose(self, x: float, y: float, heading: float) -> None:
+        """Put the state where it is once the robot knows it stands at ``(x, y, heading)``
+        ([m], [m], [rad]; default: nothing)."""
+
+    def display(self) -> tuple[np.ndarray, float, tuple[float, float]] | None:
+        """The belief a module node publishes (nav_msgs/OccupancyGrid): ``(grid, cell,
+        origin)``, the grid (nx, ny) in [0, 1], its cell side [m] and its south-west corner
+        [m]; None (the default): nothing to publish."""
+        return None
+
+    @classmethod
+    def has(cls, hook: str) -> bool:
+        """Whether this model overrides ``hook`` (one of :data:`HOOKS`): the framework calls
+        only the hooks a model overrides."""
+        if hook not in HOOKS:
+            raise ValueError(f'no hook {hook!r} (one of {", ".join(HOOKS)})')
+        return getattr(cls, hook) is not getattr(FeatureModel, hook)
 
 
 class ModulePlugin:
@@ -189,7 +277,8 @@ class ModulePlugin:
     Params : type
         Frozen parameter dataclass with ``period`` (and ``value``, ``policy`` if learned).
     defaults : Mapping or None
-        Its section when the config file has none.
+        Values of its section that a config file may leave out (all of them: the module runs
+        without a section); None = every key must be given.
     sensors : tuple of str
         Of :data:`SENSORS`.
     learned : bool
@@ -197,7 +286,7 @@ class ModulePlugin:
     topics : Mapping
         ``{relative topic: message type}`` its node publishes under its name besides
         ``proposal`` (the place module's ``belief``, from its ``display`` hook), for the
-        recorder.
+        recorder and the live view.
     """
 
     name: str = ''
@@ -215,10 +304,6 @@ class ModulePlugin:
         return f'<module plug-in {self.name!r} ({type(self).__module__})>'
 
 
-_BUILTIN = {'innate': 'clis_modules.plugins.innate:Innate',
-            'view': 'clis_modules.plugins.view:View',
-            'place': 'clis_modules.plugins.place:Place',
-            'wall': 'clis_modules.plugins.wall:Wall'}
 _CACHE: dict[str, ModulePlugin] = {}
 _FOUND: dict[str, str] = {}
 
@@ -232,14 +317,35 @@ def _load(target: str) -> Any:
     return obj
 
 
+def read_entry_points(text: str) -> dict[str, dict[str, str]]:
+    """``{group: {name: 'module:attr'}}`` of an ``entry_points.txt`` text (INI sections, one
+    ``name = module:attr`` per line; ``setup.py`` of ``clis_modules`` reads
+    :data:`OWN_ENTRY_POINTS` with it)."""
+    ini = configparser.ConfigParser(delimiters=('=',), interpolation=None)
+    ini.optionxform = str                          # type: ignore[assignment] # names as written
+    ini.read_string(text)
+    return {group: dict(ini[group]) for group in ini.sections()}
+
+
+def _own_entry_points() -> dict[str, str]:
+    package, filename = OWN_ENTRY_POINTS
+    text = importlib.resources.files(package).joinpath(filename).read_text(encoding='utf-8')
+    return read_entry_points(text).get(ENTRY_POINT_GROUP, {})
+
+
 def plugins() -> dict[str, str]:
-    """Every registered plug-in: ``{name: 'module:attr'}`` of the entry-point group (the
-    project's own also when it runs from a source tree without its metadata); the installed
-    packages are scanned once per process."""
+    """Every registered plug-in: ``{name: 'module:attr'}`` of the entry-point group, read once
+    per process. Where ``clis_modules`` runs without its metadata (from a source tree on
+    ``PYTHONPATH`` alone) its own are read from :data:`OWN_ENTRY_POINTS`, the file its
+    ``setup.py`` registers."""
     if not _FOUND:
-        _FOUND.update(_BUILTIN)
         for ep in entry_points(group=ENTRY_POINT_GROUP):
             _FOUND[ep.name] = ep.value
+        try:
+            distribution('clis_modules')
+        except PackageNotFoundError:
+            for name, value in _own_entry_points().items():
+                _FOUND.setdefault(name, value)
     return dict(_FOUND)
 
 

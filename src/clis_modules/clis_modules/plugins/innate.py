@@ -33,7 +33,7 @@ from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.modules import ValueParams
 from clis_modules.core.plugin import FeatureModel, ModuleContext, ModulePlugin, Percept
 
-__all__ = ['InnateParams', 'Innate', 'innate_target_mean']
+__all__ = ['InnateParams', 'Innate', 'InnateModel', 'innate_target_mean']
 
 
 @dataclass(frozen=True)
@@ -76,18 +76,25 @@ class Innate(ModulePlugin):
     sensors = ('camera',)
     learned = False
 
-    def model(self, prm: InnateParams, ctx: ModuleContext) -> FeatureModel:
-        grid = RbfGrid([uniform_centers(-math.pi, math.pi, prm.n_rbf, periodic=True)],
-                       [prm.phi], [True], prm.normalize)
+    def model(self, prm: InnateParams, ctx: ModuleContext) -> InnateModel:
+        return InnateModel(prm)
+
+
+class InnateModel(FeatureModel):
+    """The innate module's features and hand-made policy (module docstring); no state."""
+
+    def __init__(self, prm: InnateParams) -> None:
+        self.grid = RbfGrid([uniform_centers(-math.pi, math.pi, prm.n_rbf, periodic=True)],
+                            [prm.phi], [True], prm.normalize)
         # hand-made policy written in the module's features: least squares over a dense grid
         theta = np.linspace(-math.pi, math.pi, 721)
-        b = grid.batch(theta[:, None])[:, :-1]
+        b = self.grid.batch(theta[:, None])[:, :-1]
         target = innate_target_mean(theta, prm.forward, math.radians(prm.turn_angle_deg))
         fit, *_ = np.linalg.lstsq(b, target, rcond=None)                   # (n_rbf, 2)
-        W = np.empty((2, grid.n))  # noqa: N806 - the paper's W
+        W = np.empty((2, self.grid.n))  # noqa: N806 - the paper's W
         W[:, :-1] = fit.T
         W[:, -1] = prm.blind_forward
+        super().__init__(self.grid.n, W, sigma=prm.sigma, sigma_blind=prm.sigma_blind)
 
-        def features(p: Percept) -> np.ndarray:
-            return grid.at(p.dest_bearing)
-        return FeatureModel(grid.n, features, W, sigma=prm.sigma, sigma_blind=prm.sigma_blind)
+    def features(self, percept: Percept) -> np.ndarray:
+        return self.grid.at(percept.dest_bearing)

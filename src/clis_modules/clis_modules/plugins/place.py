@@ -28,7 +28,8 @@ from clis_modules.core.localization import LocalizationParams, MarkovLocalizer
 from clis_modules.core.modules import PolicyParams, ValueParams
 from clis_modules.core.plugin import FeatureModel, ModuleContext, ModulePlugin, Percept
 
-__all__ = ['PLACE_FEATURES', 'PlaceFeatureParams', 'PlaceParams', 'Place', 'place_projection']
+__all__ = ['PLACE_FEATURES', 'PlaceFeatureParams', 'PlaceParams', 'Place', 'PlaceModel',
+           'place_projection']
 
 #: ``place.features.kind``: the belief itself, or projected onto RBFs over the pose.
 PLACE_FEATURES = ('belief', 'rbf')
@@ -69,42 +70,55 @@ class Place(ModulePlugin):
     learned = True
     topics = {'belief': 'nav_msgs/msg/OccupancyGrid'}
 
-    def model(self, prm: PlaceParams, ctx: ModuleContext) -> FeatureModel:
-        loc = MarkovLocalizer(prm.localization, ctx.landmarks_xy, ctx.half_size, ctx.boxes)
+    def model(self, prm: PlaceParams, ctx: ModuleContext) -> PlaceModel:
+        loc = MarkovLocalizer(prm.localization, ctx.landmarks_xy, ctx.floor, ctx.boxes)
         P = place_projection(loc, prm.features) if prm.features.kind == 'rbf' else None  # noqa: N806
-        b = _Belief(loc, P)
-        # the hooks are bound methods of the state's objects: a copy of the module (a module
-        # node's warm-up, copy.deepcopy) gets a copy of the state, shared by its hooks
-        return FeatureModel(loc.size if P is None else P.shape[0], b.features,
-                            reset=loc.reset, motion=loc.predict, sense=b.sense, peek=b.peek,
-                            at_pose=b.at_pose, display=b.display, state=loc)
+        return PlaceModel(loc, P)
 
 
-class _Belief:
-    """The place module's features of its localizer's belief (module docstring)."""
+class PlaceModel(FeatureModel):
+    """The place module's state, its localizer's belief, and the features of that belief
+    (module docstring).
+
+    Parameters
+    ----------
+    loc : MarkovLocalizer
+        The state.
+    P : scipy.sparse.csr_matrix, optional
+        The projection of the ``rbf`` features (:func:`place_projection`); None: the belief.
+    """
 
     def __init__(self, loc: MarkovLocalizer, P: scipy.sparse.csr_matrix | None) -> None:  # noqa: N803
         self.loc, self.P = loc, P
+        self.state = loc
+        super().__init__(loc.size if P is None else P.shape[0])
 
     def of(self, belief: np.ndarray) -> np.ndarray:
         """The features of any belief: itself, or ``P b`` (``features.kind``)."""
         return belief.copy() if self.P is None else self.P @ belief
 
-    def features(self, p: Percept) -> np.ndarray:
+    def features(self, percept: Percept) -> np.ndarray:
         return self.of(self.loc.belief)
 
-    def sense(self, p: Percept) -> None:
-        self.loc.update(p.landmark_bearings)        # paper III-D: b(x) <- eta Pr(s | x) b(x)
+    def reset(self) -> None:
+        self.loc.reset()                            # a uniform belief
 
-    def peek(self, odometry: tuple | None, p: Percept) -> np.ndarray:
-        return self.of(self.loc.peek(odometry, p.landmark_bearings))
+    def motion(self, dx: float, dy: float, dtheta: float) -> None:
+        self.loc.predict(dx, dy, dtheta)            # b(x') <- sum_x Pr(x' | x, u) b(x)
+
+    def sense(self, percept: Percept) -> None:
+        self.loc.update(percept.landmark_bearings)  # paper III-D: b(x) <- eta Pr(s | x) b(x)
+
+    def peek(self, odometry: tuple[float, float, float] | None,
+             percept: Percept) -> np.ndarray:
+        return self.of(self.loc.peek(odometry, percept.landmark_bearings))
 
     def at_pose(self, x: float, y: float, heading: float) -> None:
         onehot = np.zeros(self.loc.shape)
         onehot[self.loc.cell_of(x, y, heading)] = 1.0
         self.loc.set_belief(onehot)
 
-    def display(self) -> tuple:
+    def display(self) -> tuple[np.ndarray, float, tuple[float, float]]:
         return self.loc.belief_grid, self.loc.cell, self.loc.origin
 
 

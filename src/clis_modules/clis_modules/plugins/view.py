@@ -17,7 +17,7 @@ from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.modules import PolicyParams, ValueParams
 from clis_modules.core.plugin import FeatureModel, ModuleContext, ModulePlugin, Percept
 
-__all__ = ['ViewParams', 'View']
+__all__ = ['ViewParams', 'View', 'ViewModel']
 
 
 @dataclass(frozen=True)
@@ -42,13 +42,20 @@ class View(ModulePlugin):
     sensors = ('camera', 'ir')
     learned = True
 
-    def model(self, prm: ViewParams, ctx: ModuleContext) -> FeatureModel:
-        grid = RbfGrid([uniform_centers(-math.pi, math.pi, prm.n_theta, periodic=True),
-                        uniform_centers(0.0, prm.d_max, prm.n_dist, False)],
-                       [prm.phi_theta, prm.phi_dist], [True, False], prm.normalize)
+    def model(self, prm: ViewParams, ctx: ModuleContext) -> ViewModel:
+        return ViewModel(prm)
 
-        def features(p: Percept) -> np.ndarray:
-            # not visible -> e_n whatever d_o is (paper III-C)
-            dest = p.dest_bearing
-            return grid.at(dest, p.d_o if math.isfinite(dest) else 0.0)
-        return FeatureModel(grid.n, features)
+
+class ViewModel(FeatureModel):
+    """The view module's features (module docstring); no state."""
+
+    def __init__(self, prm: ViewParams) -> None:
+        self.grid = RbfGrid([uniform_centers(-math.pi, math.pi, prm.n_theta, periodic=True),
+                             uniform_centers(0.0, prm.d_max, prm.n_dist, False)],
+                            [prm.phi_theta, prm.phi_dist], [True, False], prm.normalize)
+        super().__init__(self.grid.n)
+
+    def features(self, percept: Percept) -> np.ndarray:
+        # not visible -> e_n whatever d_o is (paper III-C)
+        dest = percept.dest_bearing
+        return self.grid.at(dest, percept.d_o if math.isfinite(dest) else 0.0)

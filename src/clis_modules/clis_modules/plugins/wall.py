@@ -23,7 +23,7 @@ from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.modules import PolicyParams, ValueParams
 from clis_modules.core.plugin import FeatureModel, ModuleContext, ModulePlugin, Percept
 
-__all__ = ['WallParams', 'Wall']
+__all__ = ['WallParams', 'Wall', 'WallModel']
 
 
 @dataclass(frozen=True)
@@ -48,20 +48,29 @@ class Wall(ModulePlugin):
     sensors = ('camera', 'ir')
     learned = True
 
-    def model(self, prm: WallParams, ctx: ModuleContext) -> FeatureModel:
-        centres = uniform_centers(0.0, prm.d_max, prm.n_dist, False)
-        bearing = RbfGrid([uniform_centers(-math.pi, math.pi, prm.n_theta, periodic=True)],
-                          [prm.phi_theta], [True], normalize=True)
-        rays, nd = prm.n_rays, prm.n_dist
-        scale = 1.0 / (rays + 1)
-        n = rays * nd + bearing.n
+    def model(self, prm: WallParams, ctx: ModuleContext) -> WallModel:
+        return WallModel(prm)
 
-        def features(p: Percept) -> np.ndarray:
-            b = np.empty(n)
-            ir = np.full(rays, prm.d_max) if p.ir is None else np.asarray(p.ir)[:rays]
-            g = np.exp(-(ir[:, None] - centres[None, :]) ** 2 / prm.phi_dist)   # (rays, nd)
-            g /= np.maximum(g.sum(axis=1, keepdims=True), 1e-300)
-            b[:rays * nd] = scale * g.ravel()
-            b[rays * nd:] = scale * bearing.at(p.dest_bearing)
-            return b
-        return FeatureModel(n, features)
+
+class WallModel(FeatureModel):
+    """The wall module's features (module docstring); no state."""
+
+    def __init__(self, prm: WallParams) -> None:
+        self.centres = uniform_centers(0.0, prm.d_max, prm.n_dist, False)
+        self.bearing = RbfGrid([uniform_centers(-math.pi, math.pi, prm.n_theta, periodic=True)],
+                               [prm.phi_theta], [True], normalize=True)
+        self.rays, self.n_dist = prm.n_rays, prm.n_dist
+        self.phi_dist, self.d_max = prm.phi_dist, prm.d_max
+        self.scale = 1.0 / (prm.n_rays + 1)
+        super().__init__(prm.n_rays * prm.n_dist + self.bearing.n)
+
+    def features(self, percept: Percept) -> np.ndarray:
+        rays, centres = self.rays, self.centres
+        b = np.empty(self.n)
+        ir = np.full(rays, self.d_max) if percept.ir is None else np.asarray(percept.ir)[:rays]
+        g = np.exp(-(ir[:, None] - centres[None, :]) ** 2 / self.phi_dist)  # (rays, n_dist)
+        g /= np.maximum(g.sum(axis=1, keepdims=True), 1e-300)
+        k = rays * self.n_dist
+        b[:k] = self.scale * g.ravel()
+        b[k:] = self.scale * self.bearing.at(percept.dest_bearing)
+        return b
