@@ -63,15 +63,13 @@ from clis_modules.core.policy import GaussianPolicy
 from clis_modules.core.value import LinearValue, gamma_i
 
 __all__ = [
-    'CONDITIONS', 'MODULE_NAMES', 'CommonParams', 'ValueParams', 'PolicyParams',
+    'CONDITIONS', 'CommonParams', 'ValueParams', 'PolicyParams',
     'ModuleSetParams', 'load_module_params', 'instance_defaults', 'merge_section',
     'ModuleCore', 'build_module',
     'speed_limit', 'module_gamma', 'condition_periods', 'condition_sensors', 'make_modules',
     'make_module', 'arena_map',
 ]
 
-#: The paper's modules, in its order (the index is a module node's stream of draws).
-MODULE_NAMES = ('innate', 'view', 'place')
 #: The paper's experimental conditions by name (Sec. IV); any ``TIMING:MODULE+...`` is one too
 #: (:func:`clis_modules.core.plugin.parse_condition`).
 CONDITIONS = tuple(PAPER_CONDITIONS)
