@@ -578,8 +578,9 @@ def main(args: argparse.Namespace) -> int:
     order = {id(s): k for k, (_, s) in enumerate(left)}
     ordered = longest_first([s for _, s in left])
     todo_runs = [left[order[id(s)]][0] for s in ordered]
-    print(f'clis study: {len(runs)} runs ({len(runs) - len(left)} done, {len(left)} to run) '
-          f'in {out}', file=sys.stderr)
+    print(f'clis study: {len(runs)} runs ({len(runs) - len(left)} done, {len(left)} to run, '
+          f'roughly {_cpu_text(cpu_hours([r for r, _ in left]))}) in {out}',
+          file=sys.stderr)
     t0 = time.monotonic()
     if ordered:
         for k, s in enumerate(ordered):
@@ -615,12 +616,33 @@ def _atomic_text(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+#: CPU seconds of 1000 learning episodes of Innate alone (docs/benchmarks.md: 7 CPU-s); the
+#: other conditions cost :data:`clis_app.experiment._COST` times that.
+_INNATE_CPU_S = 7.0
+
+
+def cpu_hours(runs: list[Run]) -> float:
+    """A rough estimate of the CPU time of ``runs`` [h]: the benchmarks' cost per learning
+    episode of each condition, an evaluation episode counted as a learning one."""
+    from clis_app.experiment import _cost
+    total = 0.0
+    for r in runs:
+        episodes, every = r.setting('episodes'), r.setting('eval_every')
+        evals = 5 * r.setting('eval_episodes') * (episodes // every + 2)
+        total += _INNATE_CPU_S * _cost(r.condition) * (episodes + evals) / 1000
+    return total / 3600
+
+
+def _cpu_text(hours: float) -> str:
+    return f'{hours:.1f} CPU-hours' if hours >= 1 else f'{60 * hours:.1f} CPU-minutes'
+
+
 def _print_plan(runs: list[Run], done: list[Run], out: Path) -> int:
     from collections import Counter
     cells = Counter((r.preset, r.protocol) for r in runs)
     arenas = sorted({r.arena for r in runs})
-    print(f'{len(runs)} runs ({len(done)} done in {out}); {len(arenas)} arenas: '
-          + ', '.join(arenas))
+    print(f'{len(runs)} runs ({len(done)} done in {out}), roughly '
+          f'{_cpu_text(cpu_hours(runs))}; {len(arenas)} arenas: ' + ', '.join(arenas))
     for (preset, proto), n in sorted(cells.items()):
         conds = sorted({r.condition for r in runs if (r.preset, r.protocol) == (preset, proto)})
         print(f'  preset {preset}, protocol {proto}: {n} runs; conditions {", ".join(conds)}')
