@@ -43,6 +43,7 @@ def _gap(a, b) -> float:
 
 def test_generated_layouts_hold_their_invariants(tmp_path, exact):
     assert load_sim_params().robot.radius == R
+    landmarks = set()
     for seed in SEEDS:
         path = tmp_path / f'gen{seed}.yaml'
         path.write_text(layout_yaml(layout_for_seed(seed, R)))
@@ -75,6 +76,8 @@ def test_generated_layouts_hold_their_invariants(tmp_path, exact):
             x, y = on_wall[wall]
             assert lm.x == x if x is not None else lm.y == y, where
             assert (lm.name, lm.colour) == (name, colour), where
+            landmarks.add((lm.name, lm.x, lm.y))
+    assert len(landmarks) > 4 * 20                  # drawn along the walls, not fixed
 
 
 def test_same_seed_same_bytes_other_seed_other_layout():
@@ -114,6 +117,12 @@ def test_the_situation_check_sees_a_start_out_of_its_situation():
         problems = situation_problems(parse_arena(data, R), R)
         assert len(problems) == 1 and problems[0].startswith(name), (name, problems)
         assert why in problems[0], (name, problems)
+    # D: across S1 as it should be, but its line passes 0.10 m from a new tall obstacle
+    data = copy.deepcopy(base)
+    data['tall_obstacles'].append({'name': 'T3', 'center': [-0.9, 0.15], 'size': [0.1, 0.1]})
+    assert situation_problems(parse_arena(data, R), R) == [
+        'D (short_across): the straight line passes 0.100 m from a tall obstacle (< the robot '
+        'radius 0.11 m)']
     data = copy.deepcopy(base)
     del data['starts']['C']
     assert situation_problems(parse_arena(data, R), R) == ['C (clear): no such start']

@@ -108,9 +108,11 @@ def test_an_interrupted_study_resumed_elsewhere_reports_what_one_run_straight_th
     shutil.copytree(first, moved)
     shutil.rmtree(first)
     (tmp_path / 'spec' / 'mine.yaml').unlink()
+    kept = {p: p.stat().st_mtime_ns for p in (moved / 'runs').rglob('*.json')}
     assert clis(['study', '--resume', '--out', str(moved), '--workers', '2', '--quiet']) == 0
     assert _summaries(moved) == _summaries(straight)
     assert _report(moved) == _report(straight)
+    assert {p: p.stat().st_mtime_ns for p in kept} == kept       # the finished runs were kept
     # the report is redrawn from the summaries alone
     for name in ('report.md', 'report.json', 'forest.png', 'hidden_share.png'):
         (moved / name).unlink()

@@ -684,9 +684,10 @@ def report_only(out: Path) -> int:
     rep = report(summaries, planned)
     _atomic_text(out / 'report.md', rep['markdown'])
     _atomic_json(out / 'report.json', rep['numbers'])
-    _draw(rep['numbers'], out)
-    print(rep['markdown'])
-    print(f'wrote {out}/report.md, report.json, forest.png, hidden_share.png', file=sys.stderr)
+    drawn = _draw(rep['numbers'], out)
+    md = rep['markdown']
+    print(md[:md.find('\n## Preset')] if '\n## Preset' in md else md)
+    print(f'wrote {out}/' + ', '.join(['report.md', 'report.json'] + drawn), file=sys.stderr)
     return 0
 
 
@@ -818,7 +819,21 @@ def _counts(a: Mapping[str, Any] | None) -> str:
     if not a:
         return 'n/a'
     return (f'{a["above"]} above, {a["below"]} below, {a["unresolved"]} not resolved; '
-            f'over {a["layouts"]} layouts {_pm(a, sign=True)}')
+            f'over {_layouts(a["layouts"])} {_pm(a, sign=True)}')
+
+
+#: The differences of the report: key, column title.
+_DIFFS = (('async_best', 'Async - best single'), ('thesis_view', 'M_vi in Async, alone - View'),
+          ('thesis_place', 'M_pl in Async, alone - Place'))
+
+
+def _row(cells: list[str]) -> str:
+    """A Markdown table row."""
+    return '| ' + ' | '.join(cells) + ' |'
+
+
+def _layouts(n: int) -> str:
+    return f'{n} layout{"" if n == 1 else "s"}'
 
 
 def _markdown(numbers: dict) -> str:
@@ -832,40 +847,40 @@ def _markdown(numbers: dict) -> str:
            '(Place) trained alone, on the same evaluation draws. ± is the half-width of the '
            '95% t-interval over seeds (none below 3 seeds); **above** / **below**: that '
            'interval excludes 0 (for Async above: its interval against every single module). '
-           'Over layouts: the mean of the per-layout differences, ± its 95% t-interval over '
-           'layouts.', '', '## Summary', '',
-           '| preset | protocol | layouts | Async vs best single | M_vi in Async vs View '
-           'alone | M_pl in Async vs Place alone |', '|---|---|---|---|---|---|']
+           'Over layouts: the mean of the per-layout values, ± its 95% t-interval over '
+           'layouts.', '', '## Summary', '']
+    diffs = [(k, t) for k, t in _DIFFS if any(k in g['aggregate'] for g in numbers['groups'])]
+    out += [_row(['preset', 'protocol', 'layouts'] + [t for _, t in diffs]),
+            '|---|---|---|' + '---|' * len(diffs)]
     for g in numbers['groups']:
         a = g['aggregate']
-        out.append(f'| {g["preset"]} | {g["protocol"]} | {len(g["layouts"])} | '
-                   f'{_counts(a.get("async_best"))} | {_counts(a.get("thesis_view"))} | '
-                   f'{_counts(a.get("thesis_place"))} |')
+        out.append(_row([g['preset'], g['protocol'], str(len(g['layouts']))]
+                        + [_counts(a.get(k)) for k, _ in diffs]))
     for g in numbers['groups']:
         conds = g['conditions']
+        here = [(k, t) for k, t in _DIFFS if k in g['aggregate']]
         out += ['', f'## Preset {g["preset"]}, protocol {g["protocol"]}', '',
-                '| layout | goal hidden | seeds | ' + ' | '.join(conds)
-                + ' | Async - best single | M_vi: Async - View | M_pl: Async - Place |',
-                '|---|---|---|' + '---|' * len(conds) + '---|---|---|']
+                _row(['layout', 'goal hidden', 'seeds'] + conds + [t for _, t in here]),
+                '|---|---|---|' + '---|' * (len(conds) + len(here))]
         for name, c in g['layouts'].items():
-            ab = c.get('async_best')
-            best = f' ({ab["best"]})' if ab else ''
-            out.append(
-                f'| {name} | {100 * c["hidden_share"]:.1f}% | {len(c["seeds"])} | '
-                + ' | '.join(_pm(c['conditions'].get(k)) for k in conds)
-                + f' | {_pm(ab, True)}{best}{_mark(ab)} | {_pm(c.get("thesis_view"), True)}'
-                f'{_mark(c.get("thesis_view"))} | {_pm(c.get("thesis_place"), True)}'
-                f'{_mark(c.get("thesis_place"))} |')
+            cells = [_pm(c['conditions'].get(k)) for k in conds]
+            for k, _ in here:
+                best = f' ({c[k]["best"]})' if k == 'async_best' and k in c else ''
+                cells.append(f'{_pm(c.get(k), True)}{best}{_mark(c.get(k))}')
+            out.append(_row([name, f'{100 * c["hidden_share"]:.1f}%', str(len(c['seeds']))]
+                            + cells))
         a = g['aggregate']
-        out.append(f'| over {len(g["layouts"])} layouts | | | '
-                   + ' | '.join(_pm(a.get('conditions', {}).get(k)) for k in conds)
-                   + f' | {_pm(a.get("async_best"), True)} | {_pm(a.get("thesis_view"), True)}'
-                   f' | {_pm(a.get("thesis_place"), True)} |')
+        cells = ([_pm(a.get('conditions', {}).get(k)) for k in conds]
+                 + [_pm(a.get(k), True) for k, _ in here])
+        out.append(_row([f'over {_layouts(len(g["layouts"]))}', '', ''] + cells))
     return '\n'.join(out) + '\n'
 
 
-def _draw(numbers: dict, out: Path) -> None:
+def _draw(numbers: dict, out: Path) -> list[str]:
+    """Draw the figures the numbers allow; remove those they do not (a figure of an earlier
+    report is not this one's). Returns the names of the figures drawn."""
     from clis_app.study_figures import ForestRow, forest_plot, hidden_scatter
+    drawn = []
     panels: dict[str, list] = {}
     for g in numbers['groups']:
         rows = panels.setdefault(g['protocol'], [])
@@ -882,18 +897,22 @@ def _draw(numbers: dict, out: Path) -> None:
         forest_plot(panels, out / 'forest.png',
                     'Async - best single module: final evaluated success, mean ± 95% CI '
                     'over seeds, per layout', 'Async - best single [points]')
+        drawn.append('forest.png')
     points = []
     for g in numbers['groups']:
         for name, c in g['layouts'].items():
             vi = c.get('view_innate')
             if vi and vi['mean'] is not None:
-                tag = g['protocol'] if len({x['preset'] for x in numbers['groups']}) == 1 \
-                    else f'{g["protocol"]}, {g["preset"]}'
-                points.append((tag, name, c['hidden_share'], vi['mean'], _nan(vi['half']),
-                               c['layout_seed'] is not None))
+                points.append((g['protocol'], g['preset'], name, c['hidden_share'],
+                               vi['mean'], _nan(vi['half']), c['layout_seed'] is not None))
     if points:
         hidden_scatter(points, out / 'hidden_share.png',
                        'View - Innate against how much of the floor hides the goal')
+        drawn.append('hidden_share.png')
+    for name in ('forest.png', 'hidden_share.png'):
+        if name not in drawn:
+            (out / name).unlink(missing_ok=True)
+    return drawn
 
 
 def _nan(v: float | None) -> float:

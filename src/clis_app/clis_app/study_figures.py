@@ -120,7 +120,7 @@ def forest_plot(panels: dict[str, list[ForestRow]], path: Path, title: str,
     n_rows = max((len(rows) for rows in panels.values()), default=1)
     fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels) + 1.6,
                                                        0.28 * n_rows + 1.8),
-                             sharey=True, squeeze=False)
+                             sharey=True, sharex=True, squeeze=False)
     groups = list(dict.fromkeys(r.group for rows in panels.values() for r in rows))
     colours = dict(zip(groups, ('tab:blue', 'tab:red', 'tab:green', 'tab:purple',
                                 'tab:brown', 'tab:olive')))
@@ -160,41 +160,53 @@ def forest_plot(panels: dict[str, list[ForestRow]], path: Path, title: str,
     _save(fig, path)
 
 
-def hidden_scatter(points: Sequence[tuple[str, str, float, float, float, bool]], path: Path,
-                   title: str) -> None:
-    """View - Innate (y, points, with its 95% half-width) against the hidden share (x, %),
-    one point per layout and protocol: ``(protocol, label, share, mean, half, generated)``;
-    the layouts read from files are open markers, labelled."""
+def hidden_scatter(points: Sequence[tuple[str, str, str, float, float, float, bool]],
+                   path: Path, title: str) -> None:
+    """View - Innate (y, points, with its 95% interval) against the hidden share (x, %), one
+    panel per protocol, one point per layout and preset: ``(protocol, preset, label, share,
+    mean, half, generated)``. The generated layouts are filled, with a line fitted through
+    them per preset; the layouts read from files are open markers, labelled."""
+    from matplotlib.lines import Line2D
     protocols = list(dict.fromkeys(p[0] for p in points))
-    colours = dict(zip(protocols, ('tab:blue', 'tab:orange', 'tab:green', 'tab:red',
-                                   'tab:purple', 'tab:brown')))
-    markers = dict(zip(protocols, 'os^vDP'))
-    fig, ax = plt.subplots(figsize=(6.4, 4.4))
-    ax.axhline(0.0, color='k', lw=0.8)
-    for proto, label, share, mean, half, generated in points:
-        c = colours[proto]
-        if math.isfinite(half):
-            ax.plot([100 * share] * 2, [mean - half, mean + half], '-', color=c, alpha=0.35,
-                    lw=1)
-        ax.plot(100 * share, mean, markers[proto], color=c, mfc=c if generated else 'white',
-                ms=6, alpha=0.8)
-        if not generated:
-            ax.annotate(label, (100 * share, mean), xytext=(4, 2), textcoords='offset points',
-                        fontsize=7, color=c)
-    for proto in protocols:
-        xs = np.array([100 * p[2] for p in points if p[0] == proto and p[5]])
-        ys = np.array([p[3] for p in points if p[0] == proto and p[5]])
-        ok = np.isfinite(ys)
-        if ok.sum() >= 3 and np.ptp(xs[ok]) > 0:
-            slope, icpt = np.polyfit(xs[ok], ys[ok], 1)
-            grid = np.linspace(xs[ok].min(), xs[ok].max(), 2)
-            ax.plot(grid, icpt + slope * grid, '-', color=colours[proto], lw=1,
-                    label=f'{proto} (fit: {slope:+.2f} points per %)')
-        else:
-            ax.plot([], [], markers[proto], color=colours[proto], label=proto)
-    ax.set_xlabel('share of the free floor from which the goal is hidden [%]')
-    ax.set_ylabel('View - Innate, final evaluated success [points]')
-    ax.legend(fontsize=8, title='protocol (filled: generated layouts)', title_fontsize=8)
-    ax.grid(alpha=0.3)
-    ax.set_title(title, fontsize=10)
+    presets = list(dict.fromkeys(p[1] for p in points))
+    colours = dict(zip(presets, ('tab:blue', 'tab:red', 'tab:green', 'tab:purple',
+                                 'tab:brown', 'tab:olive')))
+    fig, axes = plt.subplots(1, len(protocols), figsize=(4.2 * len(protocols) + 0.8, 4.4),
+                             sharey=True, sharex=True, squeeze=False)
+    fits = []
+    for ax, proto in zip(axes[0], protocols):
+        ax.axhline(0.0, color='k', lw=0.8)
+        for _, preset, label, share, mean, half, generated in (p for p in points
+                                                               if p[0] == proto):
+            c = colours[preset]
+            if math.isfinite(half):
+                ax.plot([100 * share] * 2, [mean - half, mean + half], '-', color=c,
+                        alpha=0.3, lw=1)
+            ax.plot(100 * share, mean, 'o', color=c, mfc=c if generated else 'white', ms=5,
+                    alpha=0.85)
+            if not generated:
+                ax.annotate(label, (100 * share, mean), xytext=(4, 3),
+                            textcoords='offset points', fontsize=7, color=c)
+        for preset in presets:
+            sel = [p for p in points if p[0] == proto and p[1] == preset and p[6]]
+            xs = np.array([100 * p[3] for p in sel])
+            ys = np.array([p[4] for p in sel])
+            if len(xs) >= 3 and np.ptp(xs) > 0:
+                slope, icpt = np.polyfit(xs, ys, 1)
+                grid = np.array([xs.min(), xs.max()])
+                ax.plot(grid, icpt + slope * grid, '-', color=colours[preset], lw=1.2)
+                fits.append(f'{proto}, {preset}: {slope:+.2f} points per %')
+        ax.set_title(proto, fontsize=10)
+        ax.set_xlabel('goal hidden from [% of the free floor]', fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel('View - Innate, final evaluated success [points]', fontsize=8)
+    handles = [Line2D([], [], color=colours[g], marker='o', ls='', label=f'preset {g}')
+               for g in presets]
+    handles += [Line2D([], [], color='grey', marker='o', ls='', label='generated layout'),
+                Line2D([], [], color='grey', marker='o', mfc='white', ls='',
+                       label='layout from a file'),
+                Line2D([], [], color='grey', ls='-', label='least-squares line (generated)')]
+    fig.legend(handles=handles, loc='lower center', ncol=len(handles), fontsize=8,
+               bbox_to_anchor=(0.5, -0.08))
+    fig.suptitle(title + ('\nslopes: ' + '; '.join(fits) if fits else ''), fontsize=9)
     _save(fig, path)
