@@ -63,6 +63,29 @@ def test_a_bad_grid_value_fails_in_one_line_before_anything_runs(tmp_path, capsy
     assert not out.exists()
 
 
+def test_a_bad_flag_is_one_line_and_creates_nothing(tmp_path, capsys):
+    spec = _spec(tmp_path / 'spec', MICRO)
+    (tmp_path / 'bad.yaml').write_text('arenas: [unclosed')
+    (tmp_path / 'empty').mkdir()
+    out = str(tmp_path / 'out')
+    cases = [([str(spec), '--out', out, '--workers', '0'], '--workers'),
+             ([str(spec), '--out', out, '--address', 'h:1'], '--address'),
+             (['--out', out], 'SPEC'), ([str(tmp_path / 'none.yaml'), '--out', out], 'none.yaml'),
+             ([str(tmp_path / 'bad.yaml'), '--out', out], 'not YAML'),
+             ([str(spec), '--out', str(spec)], 'not a folder'),
+             (['--report-only', '--out', str(tmp_path / 'empty')], 'no run summaries'),
+             ([str(spec), '--out', out, '--backend', 'slurm'], '--backend')]
+    for argv, name in cases:
+        try:
+            code = clis(['study', *argv])
+        except SystemExit as exc:                  # argparse's own (a choice not allowed)
+            code = exc.code
+        assert code == 2, argv
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and name in err, (argv, err)
+        assert not Path(out).exists(), argv
+
+
 def _report(out: Path) -> tuple[str, str]:
     return (out / 'report.md').read_text(), (out / 'report.json').read_text()
 
@@ -114,13 +137,14 @@ def test_an_interrupted_study_resumed_elsewhere_reports_what_one_run_straight_th
     assert _report(moved) == _report(straight)
     assert {p: p.stat().st_mtime_ns for p in kept} == kept       # the finished runs were kept
     # the report is redrawn from the summaries alone
-    for name in ('report.md', 'report.json', 'forest.png', 'hidden_share.png'):
+    for name in ('report.md', 'report.json', 'forest.png', 'hidden_share.png', 'layouts.png'):
         (moved / name).unlink()
     shutil.rmtree(moved / 'work')
     assert clis(['study', '--report-only', '--out', str(moved)]) == 0
     assert _report(moved) == _report(straight)
     assert (moved / 'forest.png').stat().st_size > 0
     assert (moved / 'hidden_share.png').stat().st_size > 0
+    assert (moved / 'layouts.png').stat().st_size > 0
     assert bad_rows((moved / 'report.md').read_text()) == []
     # a resume whose settings differ from the saved runs' stops in one line
     changed = _spec(tmp_path / 'spec2', {**MICRO, 'episodes': 4})

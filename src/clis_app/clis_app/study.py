@@ -25,8 +25,8 @@ settings) is written atomically to ``DIR/runs/ARENA/PROTOCOL/PRESET/CONDITION__s
 in ``DIR/work/``). The arenas are copied to ``DIR/arenas/`` and the SPEC to
 ``DIR/study.yaml``, so ``--resume`` continues an interrupted study, on any machine, from what
 is in DIR (it stops if a saved run was made with other settings). The report
-(``DIR/report.md``, ``report.json``, ``forest.png``, ``hidden_share.png``) is drawn from the
-summaries alone: ``--report-only`` redraws it.
+(``DIR/report.md``, ``report.json``, ``forest.png``, ``hidden_share.png``, ``layouts.png``)
+is drawn from the summaries and the arenas in DIR alone: ``--report-only`` redraws it.
 """
 
 from __future__ import annotations
@@ -405,7 +405,8 @@ def _job_specs(runs: list[Run], out: Path) -> list:
             overrides={**preset_overrides(r.setting('preset')), **r.setting('set')},
             sim_overrides=r.setting('sim_set'), seed=r.seed, episodes=r.setting('episodes'),
             eval_episodes=r.setting('eval_episodes'),
-            arena=str(out / 'arenas' / f'{r.arena}.yaml'), run_dir=str(out / 'work'),
+            arena=str((out / 'arenas' / f'{r.arena}.yaml').resolve()),
+            run_dir=str(out / 'work'),
             block=r.setting('eval_every'), train_start=r.protocol,
             eval_every=r.setting('eval_every'), preset=r.setting('preset')))
     return specs
@@ -673,14 +674,18 @@ def report_only(out: Path) -> int:
     """Write ``DIR/report.md``, ``report.json`` and the figures from the summaries."""
     try:
         summaries = load_summaries(out)
-    except SpecError as exc:
-        return _fail(str(exc))
+        planned = None
+        if (out / 'plan.json').is_file():
+            keys = {tuple(k) for k in json.loads((out / 'plan.json').read_text())['runs']}
+            planned = len(keys)
+            # runs of an earlier, larger SPEC left in DIR/runs are not this study's
+            summaries = [d for d in summaries if (d['arena'], d['protocol'], d['preset'],
+                                                  d['condition'], d['seed']) in keys]
+    except (SpecError, ValueError, KeyError, TypeError) as exc:
+        return _fail(f'--out {out}: {exc}')
     if not summaries:
         return _fail(f'--out {out}: no run summaries in {out}/runs (not a study folder, or '
                      'no run finished yet)')
-    planned = None
-    if (out / 'plan.json').is_file():
-        planned = len(json.loads((out / 'plan.json').read_text())['runs'])
     rep = report(summaries, planned)
     _atomic_text(out / 'report.md', rep['markdown'])
     _atomic_json(out / 'report.json', rep['numbers'])
@@ -909,10 +914,31 @@ def _draw(numbers: dict, out: Path) -> list[str]:
         hidden_scatter(points, out / 'hidden_share.png',
                        'View - Innate against how much of the floor hides the goal')
         drawn.append('hidden_share.png')
-    for name in ('forest.png', 'hidden_share.png'):
+    arenas = _study_arenas(numbers, out)
+    if arenas:
+        from cr_sim.core.robot import load_robot_params
+
+        from clis_app.study_figures import layout_gallery
+        layout_gallery(arenas, load_robot_params().radius, out / 'layouts.png')
+        drawn.append('layouts.png')
+    for name in ('forest.png', 'hidden_share.png', 'layouts.png'):
         if name not in drawn:
             (out / name).unlink(missing_ok=True)
     return drawn
+
+
+def _study_arenas(numbers: dict, out: Path) -> list[tuple[str, Any]]:
+    """The arenas of the report's layouts, read from ``DIR/arenas`` (none if one is
+    missing: the gallery is drawn for the whole study or not at all)."""
+    from cr_sim.core.arena import ArenaError, load_arena
+    names = sorted({name for g in numbers['groups'] for name in g['layouts']})
+    paths = [out / 'arenas' / f'{name}.yaml' for name in names]
+    if not all(p.is_file() for p in paths):
+        return []
+    try:
+        return [(name, load_arena(p)) for name, p in zip(names, paths)]
+    except ArenaError:
+        return []
 
 
 def _nan(v: float | None) -> float:

@@ -21,7 +21,8 @@ import numpy as np
 from clis_app.core.runner import arena_dict
 from clis_app.figures import _save, draw_arena, plt
 
-__all__ = ['draw_layout', 'layout_picture', 'ForestRow', 'forest_plot', 'hidden_scatter']
+__all__ = ['draw_layout', 'layout_picture', 'layout_gallery', 'ForestRow', 'forest_plot',
+           'hidden_scatter']
 
 #: Colour of a start's straight line to the destination, per situation.
 _LINE = {'clear': 'tab:blue', 'short_across': 'tab:orange', 'hidden': 'tab:purple'}
@@ -46,17 +47,20 @@ def _hidden_mask(arena: Arena, robot_radius: float, res: float
     return mask, (x0, x1, y0, y1)
 
 
-def draw_layout(ax, arena: Arena, robot_radius: float, res: float = 0.025) -> dict[str, str]:
+def draw_layout(ax, arena: Arena, robot_radius: float, res: float = 0.025,
+                labels: bool = True) -> dict[str, str]:
     """Draw ``arena`` on ``ax`` with its starts' situations; return :func:`start_situations`."""
     mask, extent = _hidden_mask(arena, robot_radius, res)
     ax.imshow(mask, origin='lower', extent=extent, cmap='Greys', vmin=0, vmax=4,
               interpolation='nearest', zorder=0)
     draw_arena(ax, arena_dict(arena))
     for lm in arena.landmarks:
-        ax.plot(lm.x, lm.y, 'o', color=lm.colour, ms=9, mec='k', clip_on=False, zorder=5)
-        ax.annotate(lm.name, (lm.x, lm.y), xytext=(0, 0), textcoords='offset points',
-                    fontsize=6, ha='center', va='center', zorder=6,
-                    color='white' if lm.colour in ('blue', 'green', 'red') else 'black')
+        ax.plot(lm.x, lm.y, 'o', color=lm.colour, ms=9 if labels else 6, mec='k',
+                clip_on=False, zorder=5)
+        if labels:
+            ax.annotate(lm.name, (lm.x, lm.y), xytext=(0, 0), textcoords='offset points',
+                        fontsize=6, ha='center', va='center', zorder=6,
+                        color='white' if lm.colour in ('blue', 'green', 'red') else 'black')
     d = arena.destination
     checks = start_situations(arena, robot_radius)
     for s in arena.starts:
@@ -73,19 +77,10 @@ def draw_layout(ax, arena: Arena, robot_radius: float, res: float = 0.025) -> di
     return checks
 
 
-def layout_picture(arena: Arena, robot_radius: float, path: Path, title: str) -> dict[str, str]:
-    """The picture of one layout (``clis arena show``), saved to ``path``; returns
-    :func:`start_situations` (a start out of its situation is marked with a red cross)."""
+def _legend(fig, ncol: int, below: float) -> None:
+    """The legend of :func:`draw_layout`, below ``fig``."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
-    fig, ax = plt.subplots(figsize=(6.2, 6.8))
-    checks = draw_layout(ax, arena, robot_radius)
-    share = hidden_share(arena, robot_radius)
-    bad = [n for n, why in checks.items() if why]
-    state = ("starts in the paper's situations" if not bad
-             else f'NOT in their situation: {", ".join(bad)}')
-    ax.set_title(f'{title}\ngoal hidden from {100 * share:.1f}% of the free floor (shaded); '
-                 f'{state}', fontsize=9)
     handles = [Patch(color='tab:green', alpha=0.9, label='short obstacle'),
                Patch(color='dimgray', alpha=0.9, label='tall obstacle'),
                Patch(color='lightgrey', label='goal hidden from here'),
@@ -95,8 +90,46 @@ def layout_picture(arena: Arena, robot_radius: float, path: Path, title: str) ->
                       label='landmark (its colour)'),
                Line2D([], [], color='blue', marker='x', ls='-', label='start, heading')]
     handles += [Line2D([], [], color=c, ls='--', label=_WORDS[k]) for k, c in _LINE.items()]
-    fig.legend(handles=handles, loc='lower center', ncol=3, fontsize=7.5,
-               bbox_to_anchor=(0.5, -0.08))
+    fig.legend(handles=handles, loc='lower center', ncol=ncol, fontsize=7.5,
+               bbox_to_anchor=(0.5, below))
+
+
+def layout_gallery(arenas: Sequence[tuple[str, Arena]], robot_radius: float,
+                   path: Path) -> None:
+    """Every layout of a study, small, titled with its name and hidden share (a start out of
+    its situation is marked with a red cross)."""
+    ncol = min(6, len(arenas))
+    nrow = math.ceil(len(arenas) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(2.7 * ncol, 2.9 * nrow + 0.6),
+                             squeeze=False)
+    for ax in axes.ravel()[len(arenas):]:
+        ax.axis('off')
+    for ax, (name, arena) in zip(axes.ravel(), arenas):
+        draw_layout(ax, arena, robot_radius, res=0.05, labels=False)
+        ax.set_title(f'{name}: goal hidden from {100 * hidden_share(arena, robot_radius):.0f}%',
+                     fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_xlabel('')
+        ax.set_ylabel('')
+    fig.suptitle('The layouts of the study (starts A-E, their straight lines to the goal)',
+                 fontsize=10)
+    _legend(fig, 5, -0.06 / nrow)
+    _save(fig, path)
+
+
+def layout_picture(arena: Arena, robot_radius: float, path: Path, title: str) -> dict[str, str]:
+    """The picture of one layout (``clis arena show``), saved to ``path``; returns
+    :func:`start_situations` (a start out of its situation is marked with a red cross)."""
+    fig, ax = plt.subplots(figsize=(6.2, 6.8))
+    checks = draw_layout(ax, arena, robot_radius)
+    share = hidden_share(arena, robot_radius)
+    bad = [n for n, why in checks.items() if why]
+    state = ("starts in the paper's situations" if not bad
+             else f'NOT in their situation: {", ".join(bad)}')
+    ax.set_title(f'{title}\ngoal hidden from {100 * share:.1f}% of the free floor (shaded); '
+                 f'{state}', fontsize=9)
+    _legend(fig, 3, -0.08)
     _save(fig, path)
     return checks
 
