@@ -17,7 +17,8 @@ import yaml
 from clis_app import study
 
 #: A study of a few seconds: short episodes, two layouts, the thesis' conditions, 3 seeds.
-MICRO = {'arenas': ['mine.yaml', {'generated': {'seeds': [4]}}], 'protocols': ['wander'],
+MICRO = {'name': 'micro', 'arenas': ['mine.yaml', {'generated': {'seeds': [4]}}],
+         'protocols': ['wander'],
          'presets': ['improved'], 'conditions': ['innate', 'view', 'async'], 'seeds': 3,
          'episodes': 2, 'eval_every': 1, 'eval_episodes': 1,
          'sim_set': {'episode.time_limit': 3.0}}
@@ -46,6 +47,7 @@ BAD = [
     ({'seeds': 0}, 'seeds: 0', 'an integer >= 1'),
     ({'eval_every': 3}, 'eval_every: 3', 'a divisor of episodes'),
     ({'protocol': ['wander']}, 'protocol:', 'keys arenas, protocols'),
+    ({'name': ['a']}, "name: ['a']", 'a string'),
     ({'sim_set': {'episode.time_limt': 1.0}}, 'sim_set', 'time_limt'),
     ({'grids': [{'seeds': 2}, {'protocols': ['nope']}]}, 'grids[1].protocols[0]', 'wander'),
 ]
@@ -140,6 +142,11 @@ def test_an_interrupted_study_resumed_elsewhere_reports_what_one_run_straight_th
     for name in ('report.md', 'report.json', 'forest.png', 'hidden_share.png', 'layouts.png'):
         (moved / name).unlink()
     shutil.rmtree(moved / 'work')
+    # a run of an earlier, larger SPEC left in DIR/runs is not reported
+    one = next((moved / 'runs').rglob('view__s1.json'))
+    stray = json.loads(one.read_text())
+    stray.update(seed=7, final={'episode': 2, 'reached': 5, 'n': 5})
+    one.with_name('view__s7.json').write_text(json.dumps(stray))
     assert clis(['study', '--report-only', '--out', str(moved)]) == 0
     assert _report(moved) == _report(straight)
     assert (moved / 'forest.png').stat().st_size > 0
@@ -152,6 +159,13 @@ def test_an_interrupted_study_resumed_elsewhere_reports_what_one_run_straight_th
     assert clis(['study', str(changed), '--out', str(moved), '--resume']) == 2
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and 'other settings' in err and 'episodes=2' in err, err
+    # so does one whose learning parameters changed (a preset file edited, say)
+    saved = next((moved / 'runs').rglob('view__s1.json'))
+    saved.write_text(saved.read_text().replace('"params_hash": "', '"params_hash": "x'))
+    assert clis(['study', '--resume', '--out', str(moved)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'view__s1.json' in err and 'parameters (hash x' in err, err
+    assert (moved / 'report.md').read_text().startswith('# Study report: micro\n')
 
 
 def _summary(arena: str, condition: str, seed: int, reached: int, solo: dict | None = None,

@@ -69,7 +69,7 @@ _CONDITIONS_ALLOWED = ('innate, view, place, sync, async, or TIMING:MODULE+MODUL
 
 EPILOG = """\
 examples:
-  clis study config/study_smoke.yaml --out /tmp/smoke          # a few minutes on 2 cores
+  clis study config/study_smoke.yaml --out /tmp/smoke          # 48 short runs, < 1 CPU-min
   clis study config/study_smoke.yaml --out /tmp/smoke --plan   # what it would run
   clis study config/study_smoke.yaml --out /tmp/smoke --resume # after a Ctrl-C
   clis study --report-only --out /tmp/smoke                    # redraw the report
@@ -331,6 +331,8 @@ def plan(spec: Any, spec_dir: Path, out: Path) -> tuple[list[Run], dict[str, _Ar
     unknown = sorted(set(spec) - set(GRID_KEYS + TOP_KEYS))
     if unknown:
         raise _allowed(unknown[0], spec[unknown[0]], 'keys ' + ', '.join(GRID_KEYS + TOP_KEYS))
+    if not isinstance(spec.get('name', ''), str):
+        raise _allowed('name', spec['name'], 'a string')
     radius = load_robot_params().radius
     cache: dict[str, _Arena] = {}
     names = tuple(preset_names())
@@ -362,7 +364,7 @@ def plan(spec: Any, spec_dir: Path, out: Path) -> tuple[list[Run], dict[str, _Ar
     return list(unique.values()), cache
 
 
-def _check_settings(runs: list[Run], arenas: dict[str, _Arena]) -> None:
+def _check_settings(runs: list[Run]) -> None:
     """Load the parameters of every preset, the sim overrides and each condition once."""
     from clis_learner.core.config import check_overrides, load_clis_params, preset_overrides
     from clis_modules.core.modules import condition_periods
@@ -444,11 +446,27 @@ def _store(run: Run, spec: Any, out: Path, hidden: float) -> None:
     path.unlink()
 
 
-def _mismatch(run: Run, saved: Mapping[str, Any]) -> str:
+def _mismatch(run: Run, saved: Mapping[str, Any], hashes: dict[str, str]) -> str:
+    """What makes the saved summary ``saved`` not one of ``run`` ('' when it is): a setting,
+    or the parameter hash (config/clis.yaml or a preset file edited since)."""
     now = {k: json.loads(v) for k, v in run.settings}
     old = saved.get('settings', {})
     diffs = [f'{k}={old.get(k)!r} (now {now[k]!r})' for k in now if old.get(k) != now[k]]
+    want = _params_hash(run, hashes)
+    if not diffs and saved.get('params_hash') != want:
+        diffs.append(f'parameters (hash {saved.get("params_hash")}, now {want}: config/clis.yaml '
+                     'or a preset file changed)')
     return '; '.join(diffs)
+
+
+def _params_hash(run: Run, cache: dict[str, str]) -> str:
+    """The hash of ``run``'s learning parameters (config/clis.yaml, its preset, its set)."""
+    from clis_learner.core.config import load_clis_params, params_hash, preset_overrides
+    key = json.dumps([run.setting('preset'), run.setting('set')], sort_keys=True)
+    if key not in cache:
+        cache[key] = params_hash(load_clis_params(overrides={
+            **preset_overrides(run.setting('preset')), **run.setting('set')}))
+    return cache[key]
 
 
 def _make_progress(todo_runs: list[Run], specs: list, out: Path, hidden: dict[str, float],
@@ -521,7 +539,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         spec = yaml.safe_load(spec_text)
         runs, arenas = plan(spec, spec_path.parent, out)
-        _check_settings(runs, arenas)
+        _check_settings(runs)
     except yaml.YAMLError as exc:
         return _fail(f'SPEC {spec_path}: not YAML ({exc})')
     except SpecError as exc:
@@ -532,13 +550,14 @@ def main(args: argparse.Namespace) -> int:
     if done and not args.resume:
         return _fail(f'{out} holds {len(done)} finished runs of this study: --resume to '
                      'continue it, or give another --out')
+    hashes: dict[str, str] = {}
     for r in done:
         try:
             saved = json.loads(r.summary_path(out).read_text())
         except (OSError, ValueError) as exc:
             return _fail(f'--resume: {r.summary_path(out)} is unreadable ({exc}): remove it '
                          'to run it again')
-        diff = _mismatch(r, saved)
+        diff = _mismatch(r, saved, hashes)
         if diff:
             return _fail(f'--resume: {r.summary_path(out)} was made with other settings: '
                          f'{diff}. Give another --out, or remove it to run it again')
@@ -562,7 +581,8 @@ def main(args: argparse.Namespace) -> int:
         if not copy.is_file():
             _atomic_text(copy, a.text)
         hidden[key] = hidden_share(parse_arena(yaml.safe_load(a.text), radius), radius)
-    _atomic_json(out / 'plan.json', {'runs': [list(r.key) for r in runs]})
+    _atomic_json(out / 'plan.json', {'name': spec.get('name'),
+                                      'runs': [list(r.key) for r in runs]})
     done_keys = {r.key for r in done}
     todo = [r for r in runs if r.key not in done_keys]
     specs = _job_specs(todo, out)
@@ -674,9 +694,11 @@ def report_only(out: Path) -> int:
     """Write ``DIR/report.md``, ``report.json`` and the figures from the summaries."""
     try:
         summaries = load_summaries(out)
-        planned = None
+        planned, name = None, None
         if (out / 'plan.json').is_file():
-            keys = {tuple(k) for k in json.loads((out / 'plan.json').read_text())['runs']}
+            plan_data = json.loads((out / 'plan.json').read_text())
+            keys = {tuple(k) for k in plan_data['runs']}
+            name = plan_data.get('name')
             planned = len(keys)
             # runs of an earlier, larger SPEC left in DIR/runs are not this study's
             summaries = [d for d in summaries if (d['arena'], d['protocol'], d['preset'],
@@ -686,7 +708,7 @@ def report_only(out: Path) -> int:
     if not summaries:
         return _fail(f'--out {out}: no run summaries in {out}/runs (not a study folder, or '
                      'no run finished yet)')
-    rep = report(summaries, planned)
+    rep = report(summaries, planned, name)
     _atomic_text(out / 'report.md', rep['markdown'])
     _atomic_json(out / 'report.json', rep['numbers'])
     drawn = _draw(rep['numbers'], out)
@@ -758,7 +780,8 @@ def _cell(summaries: list[dict]) -> dict:
     return cell
 
 
-def report(summaries: list[dict], planned: int | None = None) -> dict:
+def report(summaries: list[dict], planned: int | None = None, name: str | None = None
+           ) -> dict:
     """The study's report from its run summaries: ``{'markdown': text, 'numbers': dict}``.
 
     Per preset, protocol and layout: each condition's final evaluated success (the last
@@ -771,7 +794,8 @@ def report(summaries: list[dict], planned: int | None = None) -> dict:
     groups: dict[tuple[str, str], dict[str, list[dict]]] = {}
     for d in summaries:
         groups.setdefault((d['preset'], d['protocol']), {}).setdefault(d['arena'], []).append(d)
-    numbers: dict[str, Any] = {'runs': len(summaries), 'planned': planned, 'groups': []}
+    numbers: dict[str, Any] = {'name': name, 'runs': len(summaries), 'planned': planned,
+                               'groups': []}
     for (preset, proto) in sorted(groups, key=lambda k: (k[0], PROTOCOLS.index(k[1])
                                                          if k[1] in PROTOCOLS else 9, k[1])):
         cells = {a: _cell(rows) for a, rows in sorted(groups[(preset, proto)].items())}
@@ -842,7 +866,8 @@ def _layouts(n: int) -> str:
 
 
 def _markdown(numbers: dict) -> str:
-    out = ['# Study report', '',
+    title = f'# Study report: {numbers["name"]}' if numbers.get('name') else '# Study report'
+    out = [title, '',
            f'{numbers["runs"]} runs' + (f' of {numbers["planned"]} planned'
                                         if numbers['planned'] else '') + '. '
            'Final evaluated success: the successes from A-E at the last evaluation point '
