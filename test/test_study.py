@@ -14,7 +14,7 @@ import pytest
 from test_markdown_tables import bad_rows
 import yaml
 
-from clis_app import study
+from clis_app import study, study_report
 
 #: A study of a few seconds: short episodes, two layouts, the thesis' conditions, 3 seeds.
 MICRO = {'name': 'micro', 'arenas': ['mine.yaml', {'generated': {'seeds': [4]}}],
@@ -188,7 +188,7 @@ def test_the_report_counts_layouts_above_and_below_with_their_intervals():
             rows.append(_summary(arena, 'view', seed, view + jitter))
             solo = {'view': {'reached': view + 5 + jitter, 'n': 50}}  # M_vi alone: +10 points
             rows.append(_summary(arena, 'async', seed, asy + jitter - (seed == 3), solo))
-    rep = study.report(rows, planned=len(rows))
+    rep = study_report.report(rows, planned=len(rows))
     (g,) = rep['numbers']['groups']
     assert {a: c['async_best']['verdict'] for a, c in g['layouts'].items()} == \
         {'up': 'above', 'down': 'below', 'flat': ''}
