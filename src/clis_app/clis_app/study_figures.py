@@ -121,7 +121,7 @@ def layout_gallery(arenas: Sequence[tuple[str, Arena]], robot_radius: float,
 def layout_picture(arena: Arena, robot_radius: float, path: Path, title: str) -> dict[str, str]:
     """The picture of one layout (``clis arena show``), saved to ``path``; returns
     :func:`start_situations` (a start out of its situation is marked with a red cross)."""
-    fig, ax = plt.subplots(figsize=(6.2, 6.8))
+    fig, ax = plt.subplots(figsize=(6.2, 5.2 * arena.height / arena.width + 1.6))
     checks = draw_layout(ax, arena, robot_radius)
     share = hidden_share(arena, robot_radius)
     bad = [n for n, why in checks.items() if why]
