@@ -202,6 +202,7 @@ def test_the_report_counts_layouts_above_and_below_with_their_intervals():
     assert ab['mean'] == pytest.approx((19.5 - 40.5 - 0.5) / 3)
     th = g['aggregate']['thesis_view']
     assert (th['above'], th['below'], th['layouts']) == (3, 0, 3)
+    assert (ab['verdict'], th['verdict']) == ('', 'above')           # over layouts
     assert th['mean'] == pytest.approx(10.0) and th['half'] == pytest.approx(0.0)
     assert 'thesis_place' not in g['aggregate']          # no Place condition: no test
     md = rep['markdown']

@@ -182,7 +182,7 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
             if per:
                 m, h, n = _ci(per)
                 verdicts = [c[key].get('verdict', '') for c in cells.values() if key in c]
-                agg[key] = {'mean': m, 'half': h, 'layouts': n,
+                agg[key] = {'mean': m, 'half': h, 'layouts': n, 'verdict': _verdict(m, h),
                             'above': verdicts.count('above'), 'below': verdicts.count('below'),
                             'unresolved': verdicts.count('')}
         conds = list(dict.fromkeys(c for cell in cells.values() for c in cell['conditions']))
@@ -225,7 +225,7 @@ def _counts(a: Mapping[str, Any] | None) -> str:
     if not a:
         return 'n/a'
     return (f'{a["above"]} above, {a["below"]} below, {a["unresolved"]} not resolved; '
-            f'over {_layouts(a["layouts"])} {_pm(a, sign=True)}')
+            f'over {_layouts(a["layouts"])} {_pm(a, sign=True)}{_mark(a)}')
 
 
 #: The differences of the report: key, column title.
@@ -255,7 +255,8 @@ def _markdown(numbers: dict) -> str:
            '95% t-interval over seeds (none below 3 seeds); **above** / **below**: that '
            'interval excludes 0 (for Async above: its interval against every single module). '
            'Over layouts: the mean of the per-layout values, ± its 95% t-interval over '
-           'layouts.', '', '## Summary', '']
+           'layouts (**above** / **below** likewise). The summary counts the layouts on '
+           'which each difference is above, below or not resolved.', '', '## Summary', '']
     diffs = [(k, t) for k, t in _DIFFS if any(k in g['aggregate'] for g in numbers['groups'])]
     out += [_row(['preset', 'protocol', 'layouts'] + [t for _, t in diffs]),
             '|---|---|---|' + '---|' * len(diffs)]
@@ -278,7 +279,7 @@ def _markdown(numbers: dict) -> str:
                             + cells))
         a = g['aggregate']
         cells = ([_pm(a.get('conditions', {}).get(k)) for k in conds]
-                 + [_pm(a.get(k), True) for k, _ in here])
+                 + [_pm(a.get(k), True) + _mark(a.get(k)) for k, _ in here])
         out.append(_row([f'over {_layouts(len(g["layouts"]))}', '', ''] + cells))
     return '\n'.join(out) + '\n'
 
