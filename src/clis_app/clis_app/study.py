@@ -17,7 +17,7 @@ the union of the grids is run. A generated arena (``{generated: {seeds: [...]}}`
 ``{generated: {first: 0, count: 16}}``) is the layout ``clis arena generate --seed K`` writes.
 
 Every value is checked before anything runs or is written: a bad one is one line naming its
-key and the allowed values. Each run is :func:`~clis_app.core.runner.run_job` on the
+key and the allowed values. Each run is ``run_job`` (clis_app.core.runner) on the
 experiment's process pool or on Ray (``--backend``); as it finishes, its summary (the
 evaluation curve, the final evaluated success, each learned module evaluated alone, the
 settings) is written atomically to ``DIR/runs/ARENA/PROTOCOL/PRESET/CONDITION__sSEED.json``
@@ -482,8 +482,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        'x conditions x seeds) and report it', description=__doc__,
                        epilog=EPILOG, formatter_class=HelpFormatter)
     p.add_argument('spec', type=Path, nargs='?', metavar='SPEC',
-                   help='the study (YAML; docs/study.md); with --resume or --report-only the '
-                        'default is DIR/study.yaml')
+                   help='the study (YAML; docs/study.md); with --resume the default is '
+                        'DIR/study.yaml (--report-only reads none)')
     p.add_argument('--out', type=Path, required=True, metavar='DIR', help='output folder')
     p.add_argument('--resume', action='store_true',
                    help='continue a study in DIR: keep its finished runs (stops if any was '
