@@ -49,6 +49,7 @@ BAD = [
     ({'protocol': ['wander']}, 'protocol:', 'keys arenas, protocols'),
     ({'name': ['a']}, "name: ['a']", 'a string'),
     ({'sim_set': {'episode.time_limt': 1.0}}, 'sim_set', 'time_limt'),
+    ({'sim_set': {'robot.radius': 0.4}}, 'arenas: mine.yaml', 'robot radius 0.4 m'),
     ({'grids': [{'seeds': 2}, {'protocols': ['nope']}]}, 'grids[1].protocols[0]', 'wander'),
 ]
 

@@ -358,18 +358,23 @@ def plan(spec: Any, spec_dir: Path, out: Path) -> tuple[list[Run], dict[str, _Ar
     return list(unique.values()), cache
 
 
-def _check_settings(runs: list[Run]) -> None:
-    """Load the parameters of every preset, the sim overrides and each condition once."""
+def _check_settings(runs: list[Run], arenas: dict[str, _Arena]) -> None:
+    """Load the parameters of every preset, the sim overrides and each condition once, and
+    check each arena for the robot of each ``sim_set`` (a bigger body may not fit)."""
     from clis_learner.core.config import check_overrides, load_clis_params, preset_overrides
     from clis_modules.core.modules import condition_periods
+    from cr_sim.core.arena import ArenaError, parse_arena
     from cr_sim.core.sim import load_sim_params
-    seen = set()
+    import yaml
+    seen, seen_arenas = set(), set()
     for r in runs:
         sets, sim_set = r.setting('set'), r.setting('sim_set')
         key = (r.preset, r.condition, json.dumps(sim_set, sort_keys=True))
-        if key in seen:
+        arena_key = (r.arena, key[2])
+        if key in seen and arena_key in seen_arenas:
             continue
         seen.add(key)
+        seen_arenas.add(arena_key)
         try:
             check_overrides(sets, f'presets ({r.preset}).set')
             params = load_clis_params(overrides={**preset_overrides(r.setting('preset')),
@@ -377,9 +382,15 @@ def _check_settings(runs: list[Run]) -> None:
         except (ValueError, TypeError) as exc:
             raise SpecError(f'presets ({r.preset}).set: {exc}') from None
         try:
-            load_sim_params(overrides=sim_set)
+            radius = load_sim_params(overrides=sim_set).robot.radius
         except (ValueError, TypeError) as exc:
             raise SpecError(f'sim_set: {exc}') from None
+        try:
+            parse_arena(yaml.safe_load(arenas[r.arena].text), radius,
+                        source=arenas[r.arena].source)
+        except ArenaError as exc:
+            raise SpecError(f'arenas: {exc} (robot radius {radius} m with sim_set '
+                            f'{sim_set})') from None
         try:
             condition_periods(params, r.condition)
         except ValueError as exc:
@@ -531,7 +542,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         spec = yaml.safe_load(spec_text)
         runs, arenas = plan(spec, spec_path.parent, out)
-        _check_settings(runs)
+        _check_settings(runs, arenas)
     except yaml.YAMLError as exc:
         return _fail(f'SPEC {spec_path}: not YAML ({exc})')
     except SpecError as exc:
