@@ -67,7 +67,19 @@ BAGS = [(['record', '--compression', 'nope'], '--compression'),
         (['learn'], 'BAG'), (['bag'], 'ACTION'), (['bag', 'info'], 'bag'),
         (['bag', 'info', 'nonexistent'], 'nonexistent')]
 
+ARENA = [([], 'ACTION'), (['generate'], '--seed'), (['generate', '--seed', 'x'], '--seed'),
+         (['generate', '--seed', '-1'], '--seed'),
+         (['generate', '--seed', '1', '--out', 'EMPTY'], '--out'),
+         (['generate', '--seed', '1', '--png', 'no/such/dir/x.png'], '--png'),
+         (['show'], 'file'), (['show', 'nonexistent'], 'nonexistent'), (['show', 'FILE'], 'FILE')]
+STUDY = [(['--out', 'OUT'], 'SPEC'), (['nonexistent.yaml', '--out', 'OUT'], 'nonexistent'),
+         (['FILE', '--out', 'OUT'], 'FILE'), (['--report-only', '--out', 'EMPTY'], 'EMPTY'),
+         (['--report-only', '--out', 'BROKEN'], 'BROKEN'), (['FILE'], '--out'),
+         (['FILE', '--out', 'OUT', '--workers', 'x'], '--workers'),
+         (['FILE', '--out', 'OUT', '--backend', 'nope'], '--backend')]
+
 CASES = ([(['experiment', '--out', 'OUT', *a], m) for a, m in EXPERIMENT]
+         + [(['arena', *a], m) for a, m in ARENA] + [(['study', *a], m) for a, m in STUDY]
          + [(['report', *a], m) for a, m in REPORT]
          + [(['compare', *a], m) for a, m in COMPARE]
          + GLOBAL + BAGS)

@@ -29,6 +29,8 @@ examples:
   clis --network doctor            opt in to DDS on all interfaces (e.g. a real robot)
   clis experiment --help           the paper's experiments, headless (Fig. 3-5)
   clis report results/paper        tables of measured results from experiment folders
+  clis arena generate --seed 7     an arena layout drawn from a seed (clis arena --help)
+  clis study config/study.yaml --out results/study   a grid of experiments (clis study --help)
   clis run --record bags/NAME      record the run as a bag; clis bag info / replay / learn it
 """
 
@@ -59,9 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list:
     """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
-    from clis_app import bags, compare, experiment, graph_cli, report
+    from clis_app import arena_cli, bags, compare, experiment, graph_cli, report, study
     return [experiment.register, report.register, graph_cli.register, compare.register,
-            bags.register]
+            bags.register, arena_cli.register, study.register]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -446,9 +446,14 @@ def figures_only(out: Path) -> int:
     return _finish(out, [JobResult.load(p) for p in paths], None)
 
 
-def _run_all(todo: list[JobSpec], workers: int, quiet: bool) -> None:
-    progress = Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
-                        quiet=quiet)
+def _run_all(todo: list[JobSpec], workers: int, quiet: bool,
+             progress: Progress | None = None) -> None:
+    """Run ``todo`` on a pool of ``workers`` processes, each run saved as it finishes;
+    ``progress`` (default: a :class:`Progress` line) gets each run's progress and its end,
+    after its result file is written."""
+    if progress is None:
+        progress = Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
+                            quiet=quiet)
     ctx = mp.get_context('fork' if sys.platform.startswith('linux') else 'spawn')
     if ctx.get_start_method() == 'fork':
         warm_up(todo[0])          # compiled kernels loaded once, inherited by every worker

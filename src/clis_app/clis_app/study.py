@@ -1,0 +1,673 @@
+"""``clis study SPEC --out DIR``: a grid of experiments over arenas, start protocols, presets,
+conditions and seeds, resumable, with one report.
+
+SPEC is a YAML file (docs/study.md; config/study.yaml, config/study_smoke.yaml)::
+
+    arenas: [config/arena.yaml, config/arena_alt.yaml, {generated: {seeds: [0, 1, 2]}}]
+    protocols: [wander, starts, random]      # where learning episodes start (--train-start)
+    presets: [improved, {name: improved+b2, preset: improved, set: {common.beta: 2.0}}]
+    conditions: [innate, view, place, async]
+    seeds: 5                                 # 0..4, or a list
+    episodes: 1000
+    eval_every: 100                          # the final evaluated success: the last point
+    eval_episodes: 10                        # per start A-E at each evaluation point
+
+or ``grids: [{...}, {...}]``, each a grid of those keys (the top level gives their defaults):
+the union of the grids is run. A generated arena (``{generated: {seeds: [...]}}`` or
+``{generated: {first: 0, count: 16}}``) is the layout ``clis arena generate --seed K`` writes.
+
+Every value is checked before anything runs or is written: a bad one is one line naming its
+key and the allowed values. Each run is ``run_job`` (clis_app.core.runner) on the
+experiment's process pool or on Ray (``--backend``); as it finishes, its summary (the
+evaluation curve, the final evaluated success, each learned module evaluated alone, the
+settings) is written atomically to ``DIR/runs/ARENA/PROTOCOL/PRESET/CONDITION__sSEED.json``
+(a few kB: small enough to commit) and its full result file is removed (its checkpoint stays
+in ``DIR/work/``). The arenas are copied to ``DIR/arenas/`` and the SPEC to
+``DIR/study.yaml``, so ``--resume`` continues an interrupted study, on any machine, from what
+is in DIR (it stops if a saved run was made with other settings). The report
+(``DIR/report.md``, ``report.json``, ``forest.png``, ``hidden_share.png``, ``layouts.png``)
+is drawn from the summaries and the arenas in DIR alone: ``--report-only`` redraws it.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping
+from dataclasses import dataclass
+import hashlib
+import json
+import os
+from pathlib import Path
+import re
+import sys
+import time
+from typing import Any
+
+from clis_app.cli_help import HelpFormatter
+from clis_app.study_report import PROTOCOLS, SUMMARY_FORMAT, report_only
+
+__all__ = ['SpecError', 'Run', 'plan', 'summarise', 'cpu_hours', 'register', 'main',
+           'PROTOCOLS', 'GRID_KEYS', 'SUMMARY_FORMAT']
+
+#: Keys of a grid (the top level of a SPEC may give each as a default of its grids).
+GRID_KEYS = ('arenas', 'protocols', 'presets', 'conditions', 'seeds', 'episodes',
+             'eval_every', 'eval_episodes', 'sim_set')
+#: Keys of the top level besides those of a grid.
+TOP_KEYS = ('name', 'grids')
+#: Defaults of the grid keys that have one.
+DEFAULTS: dict[str, Any] = {'protocols': ['wander'], 'presets': ['paper'], 'seeds': 5,
+                            'episodes': 1000, 'eval_every': 100, 'eval_episodes': 10,
+                            'sim_set': {}}
+_CONDITIONS_ALLOWED = ('innate, view, place, sync, async, or TIMING:MODULE+MODULE... '
+                       '(docs/modules.md)')
+
+EPILOG = """\
+examples:
+  clis study config/study_smoke.yaml --out /tmp/smoke          # 48 short runs, < 1 CPU-min
+  clis study config/study_smoke.yaml --out /tmp/smoke --plan   # what it would run
+  clis study config/study_smoke.yaml --out /tmp/smoke --resume # after a Ctrl-C
+  clis study --report-only --out /tmp/smoke                    # redraw the report
+  clis study config/study.yaml --out results/study --backend ray --address HEAD:6379
+
+a SPEC (YAML; docs/study.md):
+  arenas: [config/arena.yaml, {generated: {seeds: [0, 1, 2]}}]
+  protocols: [wander, starts, random]
+  presets: [improved, {name: improved+b2, preset: improved, set: {common.beta: 2.0}}]
+  conditions: [innate, view, place, async]
+  seeds: 5
+  episodes: 1000
+  eval_every: 100
+"""
+
+
+class SpecError(ValueError):
+    """A SPEC value that is not allowed (the message names the key and the allowed values)."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of a study: a cell of its grid and a seed, with the settings it is made with."""
+
+    arena: str            # key: a file's stem, or gen-sNNN
+    protocol: str
+    preset: str           # the preset's name in the study (may carry overrides)
+    condition: str
+    seed: int
+    settings: tuple       # sorted (key, value) pairs, JSON-encoded values
+
+    @property
+    def key(self) -> tuple[str, str, str, str, int]:
+        return (self.arena, self.protocol, self.preset, self.condition, self.seed)
+
+    def summary_path(self, out: Path) -> Path:
+        """``DIR/runs/ARENA/PROTOCOL/PRESET/CONDITION__sSEED.json``."""
+        return (out / 'runs' / _slug(self.arena) / self.protocol / _slug(self.preset)
+                / f'{_slug(self.condition)}__s{self.seed}.json')
+
+    @property
+    def label(self) -> str:
+        return f'{self.arena}/{self.protocol}/{self.preset}/{self.condition}'
+
+    def setting(self, name: str) -> Any:
+        return json.loads(dict(self.settings)[name])
+
+
+def _slug(text: str) -> str:
+    return re.sub(r'[^A-Za-z0-9_.=+-]+', '_', text)
+
+
+# ------------------------------------------------------------------------------------------
+# the SPEC
+
+def _allowed(where: str, value: Any, allowed: str) -> SpecError:
+    return SpecError(f'{where}: {value!r} is not allowed; allowed: {allowed}')
+
+
+def _int(value: Any, where: str, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+        raise _allowed(where, value, f'an integer >= {lo}')
+    return value
+
+
+def _list(value: Any, where: str, allowed: str) -> list:
+    if not isinstance(value, list) or not value:
+        raise _allowed(where, value, f'a non-empty list of {allowed}')
+    return value
+
+
+@dataclass(frozen=True)
+class _Arena:
+    key: str
+    text: str
+    source: str           # the file as the SPEC names it, or 'clis arena generate --seed K'
+    seed: int | None      # the layout seed of a generated arena
+
+
+@dataclass(frozen=True)
+class _Preset:
+    name: str
+    base: str
+    sets: dict
+
+
+def _arenas(items: Any, where: str, spec_dir: Path, out: Path, radius: float,
+            cache: dict) -> list[_Arena]:
+    allowed = ('an arena file (config/arena.yaml format) or {generated: {seeds: [K, ...]}} '
+               'or {generated: {first: K, count: N}}')
+    out_arenas = []
+    for i, item in enumerate(_list(items, where, allowed)):
+        w = f'{where}[{i}]'
+        if isinstance(item, str):
+            out_arenas.append(_file_arena(item, w, spec_dir, out, radius, cache))
+            continue
+        if not (isinstance(item, Mapping) and set(item) == {'generated'}
+                and isinstance(item['generated'], Mapping)):
+            raise _allowed(w, item, allowed)
+        gen = item['generated']
+        if set(gen) == {'seeds'}:
+            seeds = [_int(s, f'{w}.generated.seeds[{k}]', 0) for k, s in
+                     enumerate(_list(gen['seeds'], f'{w}.generated.seeds', 'layout seeds'))]
+        elif set(gen) <= {'first', 'count'} and 'count' in gen:
+            first = _int(gen.get('first', 0), f'{w}.generated.first', 0)
+            seeds = list(range(first, first + _int(gen['count'], f'{w}.generated.count', 1)))
+        else:
+            raise _allowed(f'{w}.generated', dict(gen), '{seeds: [K, ...]} or '
+                           '{first: K, count: N}')
+        for seed in seeds:
+            out_arenas.append(_generated_arena(seed, radius, cache))
+    return out_arenas
+
+
+def _generated_arena(seed: int, radius: float, cache: dict) -> _Arena:
+    key = f'gen-s{seed:03d}'
+    if key not in cache:
+        from cr_sim.core.layout import layout_for_seed, layout_yaml
+        cache[key] = _Arena(key, layout_yaml(layout_for_seed(seed, radius)),
+                            f'clis arena generate --seed {seed}', seed)
+    return cache[key]
+
+
+def _file_arena(name: str, where: str, spec_dir: Path, out: Path, radius: float,
+                cache: dict) -> _Arena:
+    """An arena file: found from the current folder, else from the SPEC's; else its copy in
+    ``DIR/arenas/`` (a study resumed on a machine without the file)."""
+    from cr_sim.core.arena import ArenaError, parse_arena
+    import yaml
+    key = _slug(Path(name).stem)
+    if key.startswith('gen-s'):
+        raise _allowed(where, name, 'a file whose name does not start with gen-s (the '
+                       "generated layouts' names)")
+    candidates = [Path(name), spec_dir / name, out / 'arenas' / f'{key}.yaml']
+    path = next((p for p in candidates if p.is_file()), None)
+    if path is None:
+        raise SpecError(f'{where}: {name}: no such file (looked in the current folder and '
+                        f'beside the SPEC)')
+    text = path.read_text()
+    try:
+        parse_arena(yaml.safe_load(text), radius, source=name)
+    except (ArenaError, yaml.YAMLError) as exc:
+        raise SpecError(f'{where}: {exc}') from None
+    arena = _Arena(key, text, name, None)
+    if key in cache and cache[key].text != text:
+        raise SpecError(f'{where}: {name} and {cache[key].source} have the same name {key!r} '
+                        'but other layouts: rename one')
+    cache[key] = arena
+    return arena
+
+
+def _presets(items: Any, where: str, names: tuple[str, ...]) -> list[_Preset]:
+    allowed = (f'a preset ({", ".join(names)}) or {{name: NAME, preset: PRESET, set: '
+               '{KEY: VALUE, ...}}')
+    out = []
+    for i, item in enumerate(_list(items, where, allowed)):
+        w = f'{where}[{i}]'
+        if isinstance(item, str):
+            if item not in names:
+                raise _allowed(w, item, ', '.join(names))
+            out.append(_Preset(item, item, {}))
+            continue
+        if not isinstance(item, Mapping) or not {'name', 'preset'} <= set(item) \
+                or not set(item) <= {'name', 'preset', 'set'}:
+            raise _allowed(w, item, allowed)
+        if item['preset'] not in names:
+            raise _allowed(f'{w}.preset', item['preset'], ', '.join(names))
+        if not isinstance(item['name'], str) or not re.fullmatch(r'[A-Za-z0-9_.=+-]+',
+                                                                 item['name']):
+            raise _allowed(f'{w}.name', item['name'], 'a name of letters, digits and _.=+-')
+        sets = item.get('set') or {}
+        if not isinstance(sets, Mapping):
+            raise _allowed(f'{w}.set', sets, 'a mapping KEY: VALUE of config/clis.yaml')
+        out.append(_Preset(item['name'], item['preset'], dict(sets)))
+    return out
+
+
+def _conditions(items: Any, where: str) -> list[str]:
+    from clis_modules.core.plugin import parse_condition
+    out = []
+    for i, item in enumerate(_list(items, where, 'conditions')):
+        try:
+            if not isinstance(item, str) or '@' in item:
+                raise ValueError(item)
+            parse_condition(item)
+        except ValueError:
+            raise _allowed(f'{where}[{i}]', item, _CONDITIONS_ALLOWED) from None
+        out.append(item)
+    return out
+
+
+def _grid_runs(grid: Mapping[str, Any], where: str, spec_dir: Path, out: Path,
+               radius: float, cache: dict, preset_names: tuple[str, ...]) -> list[Run]:
+    unknown = sorted(set(grid) - set(GRID_KEYS))
+    if unknown:
+        raise _allowed(f'{where}{unknown[0]}', grid[unknown[0]],
+                       'keys ' + ', '.join(GRID_KEYS))
+    g = {**DEFAULTS, **grid}
+    for key in ('arenas', 'conditions'):
+        if key not in g:
+            raise SpecError(f'{where}{key}: missing; allowed keys: {", ".join(GRID_KEYS)}')
+    arenas = _arenas(g['arenas'], f'{where}arenas', spec_dir, out, radius, cache)
+    protocols = _list(g['protocols'], f'{where}protocols', ', '.join(PROTOCOLS))
+    for i, p in enumerate(protocols):
+        if p not in PROTOCOLS:
+            raise _allowed(f'{where}protocols[{i}]', p, ', '.join(PROTOCOLS))
+    presets = _presets(g['presets'], f'{where}presets', preset_names)
+    conditions = _conditions(g['conditions'], f'{where}conditions')
+    if isinstance(g['seeds'], list):
+        seeds = [_int(s, f'{where}seeds[{k}]', 0) for k, s in enumerate(g['seeds'])]
+        if not seeds:
+            raise _allowed(f'{where}seeds', [], 'a number N (seeds 0..N-1) or a list')
+    else:
+        seeds = list(range(_int(g['seeds'], f'{where}seeds', 1)))
+    episodes = _int(g['episodes'], f'{where}episodes', 1)
+    every = _int(g['eval_every'], f'{where}eval_every', 1)
+    if episodes % every:
+        raise _allowed(f'{where}eval_every', every, f'a divisor of episodes ({episodes}): the '
+                       'last evaluation point is the end of learning')
+    eval_episodes = _int(g['eval_episodes'], f'{where}eval_episodes', 1)
+    if not isinstance(g['sim_set'], Mapping):
+        raise _allowed(f'{where}sim_set', g['sim_set'], 'a mapping KEY: VALUE of '
+                       'config/sim.yaml')
+    for name, items in (('protocols', protocols), ('conditions', conditions),
+                        ('seeds', seeds), ('arenas', [a.key for a in arenas]),
+                        ('presets', [p.name for p in presets])):
+        twice = sorted({str(v) for v in items if items.count(v) > 1})
+        if twice:
+            raise SpecError(f'{where}{name}: {twice[0]} is listed twice')
+    runs = []
+    for a in arenas:
+        sha = hashlib.sha256(a.text.encode()).hexdigest()[:16]
+        for proto in protocols:
+            for p in presets:
+                for cond in conditions:
+                    settings = {'episodes': episodes, 'eval_every': every,
+                                'eval_episodes': eval_episodes, 'preset': p.base,
+                                'set': p.sets, 'sim_set': dict(g['sim_set']),
+                                'arena_sha256': sha, 'layout_seed': a.seed}
+                    enc = tuple(sorted((k, json.dumps(v, sort_keys=True))
+                                       for k, v in settings.items()))
+                    runs += [Run(a.key, proto, p.name, cond, s, enc) for s in seeds]
+    return runs
+
+
+def plan(spec: Any, spec_dir: Path, out: Path) -> tuple[list[Run], dict[str, _Arena]]:
+    """The runs of a SPEC (its grids' union) and its arenas, every value checked.
+
+    Raises
+    ------
+    SpecError
+        The first value that is not allowed, naming its key and the allowed values.
+    """
+    from cr_sim.core.robot import load_robot_params
+
+    from clis_app.experiment import presets as preset_names
+    if not isinstance(spec, Mapping):
+        raise SpecError(f'the SPEC must be a mapping of keys {", ".join(GRID_KEYS + TOP_KEYS)}')
+    unknown = sorted(set(spec) - set(GRID_KEYS + TOP_KEYS))
+    if unknown:
+        raise _allowed(unknown[0], spec[unknown[0]], 'keys ' + ', '.join(GRID_KEYS + TOP_KEYS))
+    if not isinstance(spec.get('name', ''), str):
+        raise _allowed('name', spec['name'], 'a string')
+    radius = load_robot_params().radius
+    cache: dict[str, _Arena] = {}
+    names = tuple(preset_names())
+    defaults = {k: v for k, v in spec.items() if k in GRID_KEYS}
+    if 'grids' in spec:
+        grids = _list(spec['grids'], 'grids', 'grids (mappings of ' + ', '.join(GRID_KEYS)
+                      + ')')
+        runs = []
+        for i, grid in enumerate(grids):
+            if not isinstance(grid, Mapping):
+                raise _allowed(f'grids[{i}]', grid, 'a mapping of ' + ', '.join(GRID_KEYS))
+            runs += _grid_runs({**defaults, **grid}, f'grids[{i}].', spec_dir, out, radius,
+                               cache, names)
+    else:
+        runs = _grid_runs(defaults, '', spec_dir, out, radius, cache, names)
+    unique: dict[tuple, Run] = {}
+    for r in runs:
+        old = unique.setdefault(r.key, r)
+        if old.settings != r.settings:
+            raise SpecError(f'run {r.label} seed {r.seed} is in two grids with other '
+                            'settings (episodes, evaluation, preset changes): give one of '
+                            'them another preset name')
+    slugs = {}
+    for r in unique.values():
+        other = slugs.setdefault(r.summary_path(Path('.')), r)
+        if other is not r:
+            raise SpecError(f'{r.label} and {other.label} would share a summary file: '
+                            'rename one')
+    return list(unique.values()), cache
+
+
+def _check_settings(runs: list[Run], arenas: dict[str, _Arena]) -> None:
+    """Load the parameters of every preset, the sim overrides and each condition once, and
+    check each arena for the robot of each ``sim_set`` (a bigger body may not fit)."""
+    from clis_learner.core.config import check_overrides, load_clis_params, preset_overrides
+    from clis_modules.core.modules import condition_periods
+    from cr_sim.core.arena import ArenaError, parse_arena
+    from cr_sim.core.sim import load_sim_params
+    import yaml
+    seen, seen_arenas = set(), set()
+    for r in runs:
+        sets, sim_set = r.setting('set'), r.setting('sim_set')
+        key = (r.preset, r.condition, json.dumps(sim_set, sort_keys=True))
+        arena_key = (r.arena, key[2])
+        if key in seen and arena_key in seen_arenas:
+            continue
+        seen.add(key)
+        seen_arenas.add(arena_key)
+        try:
+            check_overrides(sets, f'presets ({r.preset}).set')
+            params = load_clis_params(overrides={**preset_overrides(r.setting('preset')),
+                                                 **sets})
+        except (ValueError, TypeError) as exc:
+            raise SpecError(f'presets ({r.preset}).set: {exc}') from None
+        try:
+            radius = load_sim_params(overrides=sim_set).robot.radius
+        except (ValueError, TypeError) as exc:
+            raise SpecError(f'sim_set: {exc}') from None
+        try:
+            parse_arena(yaml.safe_load(arenas[r.arena].text), radius,
+                        source=arenas[r.arena].source)
+        except ArenaError as exc:
+            raise SpecError(f'arenas: {exc} (robot radius {radius} m with sim_set '
+                            f'{sim_set})') from None
+        try:
+            condition_periods(params, r.condition)
+        except ValueError as exc:
+            raise SpecError(f'conditions: {r.condition!r}: {exc}; allowed: '
+                            f'{_CONDITIONS_ALLOWED}') from None
+
+
+# ------------------------------------------------------------------------------------------
+# running
+
+def _job_specs(runs: list[Run], out: Path) -> list:
+    from clis_learner.core.config import preset_overrides
+
+    from clis_app.core.runner import JobSpec
+    specs = []
+    for k, r in enumerate(runs):
+        specs.append(JobSpec(
+            index=k, label=r.label, condition=r.condition,
+            overrides={**preset_overrides(r.setting('preset')), **r.setting('set')},
+            sim_overrides=r.setting('sim_set'), seed=r.seed, episodes=r.setting('episodes'),
+            eval_episodes=r.setting('eval_episodes'),
+            arena=str((out / 'arenas' / f'{r.arena}.yaml').resolve()),
+            run_dir=str(out / 'work'),
+            block=r.setting('eval_every'), train_start=r.protocol,
+            eval_every=r.setting('eval_every'), preset=r.setting('preset')))
+    return specs
+
+
+def summarise(run: Run, result: Any, hidden: float) -> dict:
+    """The summary of a finished run (what the report reads): its settings, the evaluation
+    curve, the final evaluated success (the last point) and each learned module alone."""
+    final = result.eval_curve[-1]
+    return {
+        'format': SUMMARY_FORMAT, 'arena': run.arena, 'protocol': run.protocol,
+        'preset': run.preset, 'condition': run.condition, 'seed': run.seed,
+        'settings': {k: json.loads(v) for k, v in run.settings},
+        'params_hash': result.params_hash, 'modules': result.modules,
+        'hidden_share': hidden,
+        'final': {'episode': final['episode'], 'reached': final['reached'], 'n': final['n']},
+        'eval_curve': result.eval_curve, 'solo': result.solo,
+        'seconds': round(float(result.seconds), 1)}
+
+
+def _atomic_json(path: Path, data: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _atomic_text(path, json.dumps(data, indent=1, sort_keys=True) + '\n')
+
+
+def _store(run: Run, spec: Any, out: Path, hidden: float) -> None:
+    """The summary of ``spec``'s finished result file, written atomically; the result file
+    (large: every episode) is removed afterwards, its checkpoint kept."""
+    from clis_app.core.runner import JobResult
+    path = spec.result_path()
+    result = JobResult.load(path)
+    _atomic_json(run.summary_path(out), summarise(run, result, hidden))
+    path.unlink()
+
+
+def _mismatch(run: Run, saved: Mapping[str, Any], hashes: dict[str, str]) -> str:
+    """What makes the saved summary ``saved`` not one of ``run`` ('' when it is): a setting,
+    or the parameter hash (config/clis.yaml or a preset file edited since)."""
+    now = {k: json.loads(v) for k, v in run.settings}
+    old = saved.get('settings', {})
+    diffs = [f'{k}={old.get(k)!r} (now {now[k]!r})' for k in now if old.get(k) != now[k]]
+    want = _params_hash(run, hashes)
+    if not diffs and saved.get('params_hash') != want:
+        diffs.append(f'parameters (hash {saved.get("params_hash")}, now {want}: config/clis.yaml '
+                     'or a preset file changed)')
+    return '; '.join(diffs)
+
+
+def _params_hash(run: Run, cache: dict[str, str]) -> str:
+    """The hash of ``run``'s learning parameters (config/clis.yaml, its preset, its set)."""
+    from clis_learner.core.config import load_clis_params, params_hash, preset_overrides
+    key = json.dumps([run.setting('preset'), run.setting('set')], sort_keys=True)
+    if key not in cache:
+        cache[key] = params_hash(load_clis_params(overrides={
+            **preset_overrides(run.setting('preset')), **run.setting('set')}))
+    return cache[key]
+
+
+def _make_progress(todo_runs: list[Run], specs: list, out: Path, hidden: dict[str, float],
+                   quiet: bool) -> Any:
+    from clis_app.experiment import Progress
+
+    class StudyProgress(Progress):
+        """The experiment's progress line; each finished run's summary is written first."""
+
+        def finish(self, job: int, episodes: int, note: str) -> None:
+            run = todo_runs[job]
+            _store(run, specs[job], out, hidden[run.arena])
+            super().finish(job, episodes, f'{run.label} s{run.seed} done')
+
+    return StudyProgress(total_episodes=sum(s.episodes for s in specs), runs=len(specs),
+                         quiet=quiet)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser('study', help='run a grid of experiments (arenas x protocols x presets '
+                       'x conditions x seeds) and report it', description=__doc__,
+                       epilog=EPILOG, formatter_class=HelpFormatter)
+    p.add_argument('spec', type=Path, nargs='?', metavar='SPEC',
+                   help='the study (YAML; docs/study.md); with --resume the default is '
+                        'DIR/study.yaml (--report-only reads none)')
+    p.add_argument('--out', type=Path, required=True, metavar='DIR', help='output folder')
+    p.add_argument('--resume', action='store_true',
+                   help='continue a study in DIR: keep its finished runs (stops if any was '
+                        'made with other settings)')
+    p.add_argument('--report-only', action='store_true',
+                   help="only redraw DIR's report from its run summaries")
+    p.add_argument('--plan', action='store_true',
+                   help='print the runs the SPEC makes (and which are done in DIR); run none')
+    p.add_argument('--workers', type=int, default=os.cpu_count() or 1,
+                   help='parallel processes (with --backend ray and no --address: the CPUs '
+                        'of the local Ray instance)')
+    p.add_argument('--backend', choices=('process', 'ray'), default='process',
+                   help="'process': a pool on this machine; 'ray': Ray tasks (docs/scale.md)")
+    p.add_argument('--address', metavar='ADDR',
+                   help='with --backend ray: the Ray cluster to join (host:port)')
+    p.add_argument('--quiet', action='store_true', help='no progress line')
+    p.set_defaults(func=main)
+
+
+def _fail(message: str, code: int = 2) -> int:
+    print(f'clis study: {" ".join(str(message).split())}', file=sys.stderr)
+    return code
+
+
+def main(args: argparse.Namespace) -> int:
+    """``clis study``: the whole SPEC is checked before anything is written to DIR."""
+    import yaml
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        return _fail(f'--out {out}: not a folder')
+    if args.report_only:
+        return report_only(out)
+    spec_path = args.spec
+    if spec_path is None:
+        if not args.resume:
+            return _fail('give a SPEC (a YAML file; docs/study.md)')
+        spec_path = out / 'study.yaml'
+    if not spec_path.is_file():
+        return _fail(f'SPEC {spec_path}: no such file')
+    if args.workers < 1:
+        return _fail(f'--workers must be >= 1 (got {args.workers})')
+    if args.address and args.backend != 'ray':
+        return _fail('--address needs --backend ray')
+    spec_text = spec_path.read_text()
+    try:
+        spec = yaml.safe_load(spec_text)
+        runs, arenas = plan(spec, spec_path.parent, out)
+        _check_settings(runs, arenas)
+    except yaml.YAMLError as exc:
+        return _fail(f'SPEC {spec_path}: not YAML ({exc})')
+    except SpecError as exc:
+        return _fail(f'SPEC {spec_path}: {exc}')
+    done = [r for r in runs if r.summary_path(out).is_file()]
+    if args.plan:
+        return _print_plan(runs, done, out)
+    if done and not args.resume:
+        return _fail(f'{out} holds {len(done)} finished runs of this study: --resume to '
+                     'continue it, or give another --out')
+    hashes: dict[str, str] = {}
+    for r in done:
+        try:
+            saved = json.loads(r.summary_path(out).read_text())
+        except (OSError, ValueError) as exc:
+            return _fail(f'--resume: {r.summary_path(out)} is unreadable ({exc}): remove it '
+                         'to run it again')
+        diff = _mismatch(r, saved, hashes)
+        if diff:
+            return _fail(f'--resume: {r.summary_path(out)} was made with other settings: '
+                         f'{diff}. Give another --out, or remove it to run it again')
+    for key, a in arenas.items():
+        copy = out / 'arenas' / f'{key}.yaml'
+        if copy.is_file() and copy.read_text() != a.text:
+            return _fail(f'arenas: {a.source} differs from {copy}, the layout of the runs '
+                         'saved in DIR: give another --out (or restore the file)')
+    # everything checked: write
+    from cr_sim.core.arena import parse_arena
+    from cr_sim.core.layout import hidden_share
+    from cr_sim.core.robot import load_robot_params
+    radius = load_robot_params().radius
+    (out / 'arenas').mkdir(parents=True, exist_ok=True)
+    (out / 'work').mkdir(exist_ok=True)
+    if spec_path.resolve() != (out / 'study.yaml').resolve():
+        _atomic_text(out / 'study.yaml', spec_text)
+    hidden = {}
+    for key, a in arenas.items():
+        copy = out / 'arenas' / f'{key}.yaml'
+        if not copy.is_file():
+            _atomic_text(copy, a.text)
+        hidden[key] = hidden_share(parse_arena(yaml.safe_load(a.text), radius), radius)
+    _atomic_json(out / 'plan.json', {'name': spec.get('name'),
+                                      'runs': [list(r.key) for r in runs]})
+    done_keys = {r.key for r in done}
+    todo = [r for r in runs if r.key not in done_keys]
+    specs = _job_specs(todo, out)
+    # a run whose result file was written but not summarised (interrupted in between)
+    left = []
+    for r, s in zip(todo, specs):
+        if s.done():
+            from clis_app.core.runner import JobResult
+            if not s.differences(JobResult.load(s.result_path())):
+                _store(r, s, out, hidden[r.arena])
+                continue
+        left.append((r, s))
+    from clis_app.experiment import longest_first
+    order = {id(s): k for k, (_, s) in enumerate(left)}
+    ordered = longest_first([s for _, s in left])
+    todo_runs = [left[order[id(s)]][0] for s in ordered]
+    print(f'clis study: {len(runs)} runs ({len(runs) - len(left)} done, {len(left)} to run, '
+          f'roughly {_cpu_text(cpu_hours([r for r, _ in left]))}) in {out}',
+          file=sys.stderr)
+    t0 = time.monotonic()
+    if ordered:
+        for k, s in enumerate(ordered):
+            s.index = k
+        progress = _make_progress(todo_runs, ordered, out, hidden, args.quiet)
+        if args.backend == 'ray':
+            try:
+                from clis_app.ray_backend import run_ray
+                run_ray(ordered, args.workers, args.address, progress)
+            except ImportError as exc:
+                return _fail(f'--backend ray needs ray ({exc}); `make setup` installs it')
+            except ConnectionError as exc:
+                return _fail(f'cannot reach the Ray cluster at {args.address}: {exc}', 1)
+        else:
+            from clis_app.experiment import _run_all
+            _run_all(ordered, args.workers, args.quiet, progress)
+        if not args.quiet:
+            print(file=sys.stderr)
+    missing = [r for r in runs if not r.summary_path(out).is_file()]
+    if missing:
+        return _fail(f'{len(missing)} runs have no summary (e.g. {missing[0].label} seed '
+                     f'{missing[0].seed}); rerun with --resume', 1)
+    took = time.monotonic() - t0
+    code = report_only(out)
+    if ordered:
+        print(f'clis study: {len(ordered)} runs in {took / 60:.1f} min', file=sys.stderr)
+    return code
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f'.{path.name}.tmp')
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+#: CPU seconds of 1000 learning episodes of Innate alone (docs/benchmarks.md: 7 CPU-s); the
+#: other conditions cost :data:`clis_app.experiment._COST` times that.
+_INNATE_CPU_S = 7.0
+
+
+def cpu_hours(runs: list[Run]) -> float:
+    """A rough estimate of the CPU time of ``runs`` [h]: the benchmarks' cost per learning
+    episode of each condition, an evaluation episode counted as a learning one."""
+    from clis_app.experiment import _cost
+    total = 0.0
+    for r in runs:
+        episodes, every = r.setting('episodes'), r.setting('eval_every')
+        evals = 5 * r.setting('eval_episodes') * (episodes // every + 2)
+        total += _INNATE_CPU_S * _cost(r.condition) * (episodes + evals) / 1000
+    return total / 3600
+
+
+def _cpu_text(hours: float) -> str:
+    return f'{hours:.1f} CPU-hours' if hours >= 1 else f'{60 * hours:.1f} CPU-minutes'
+
+
+def _print_plan(runs: list[Run], done: list[Run], out: Path) -> int:
+    from collections import Counter
+    cells = Counter((r.preset, r.protocol) for r in runs)
+    arenas = sorted({r.arena for r in runs})
+    print(f'{len(runs)} runs ({len(done)} done in {out}), roughly '
+          f'{_cpu_text(cpu_hours(runs))}; {len(arenas)} arenas: ' + ', '.join(arenas))
+    for (preset, proto), n in sorted(cells.items()):
+        conds = sorted({r.condition for r in runs if (r.preset, r.protocol) == (preset, proto)})
+        print(f'  preset {preset}, protocol {proto}: {n} runs; conditions {", ".join(conds)}')
+    return 0

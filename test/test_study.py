@@ -1,0 +1,234 @@
+"""`clis study` and `clis arena`: a bad grid value fails in one line before anything runs; an
+interrupted study resumed (elsewhere, from its folder alone) reports what one run straight
+through reports; the report's counts and intervals; the arena commands."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import shutil
+
+from clis_app.cli import main as clis
+from cr_sim.core.params import config_dir
+import pytest
+from test_markdown_tables import bad_rows
+import yaml
+
+from clis_app import study, study_report
+
+#: A study of a few seconds: short episodes, two layouts, the thesis' conditions, 3 seeds.
+MICRO = {'name': 'micro', 'arenas': ['mine.yaml', {'generated': {'seeds': [4]}}],
+         'protocols': ['wander'],
+         'presets': ['improved'], 'conditions': ['innate', 'view', 'async'], 'seeds': 3,
+         'episodes': 2, 'eval_every': 1, 'eval_episodes': 1,
+         'sim_set': {'episode.time_limit': 3.0}}
+
+
+def _spec(folder: Path, spec: dict) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copy(config_dir() / 'arena.yaml', folder / 'mine.yaml')
+    path = folder / 'spec.yaml'
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+BAD = [
+    ({'protocols': ['wandr']}, "protocols[0]: 'wandr'", 'wander, starts, random'),
+    ({'conditions': ['innate', 'teleport']}, "conditions[1]: 'teleport'", 'innate, view'),
+    ({'conditions': ['view@common.beta=2']}, 'conditions[0]', 'TIMING:MODULE'),
+    ({'presets': ['fast']}, "presets[0]: 'fast'", 'paper, improved'),
+    ({'presets': [{'name': 'x', 'preset': 'fast'}]}, 'presets[0].preset', 'paper, improved'),
+    ({'presets': [{'name': 'x', 'preset': 'improved', 'set': {'common.bta': 1}}]},
+     'presets (x).set', 'common.bta'),
+    ({'arenas': ['nowhere.yaml']}, 'arenas[0]: nowhere.yaml: no such file', 'current folder'),
+    ({'arenas': [{'generated': {'seeds': [-1]}}]}, 'arenas[0].generated.seeds[0]',
+     'an integer >= 0'),
+    ({'arenas': [{'made': 3}]}, 'arenas[0]', 'generated: {seeds'),
+    ({'seeds': 0}, 'seeds: 0', 'an integer >= 1'),
+    ({'eval_every': 3}, 'eval_every: 3', 'a divisor of episodes'),
+    ({'protocol': ['wander']}, 'protocol:', 'keys arenas, protocols'),
+    ({'name': ['a']}, "name: ['a']", 'a string'),
+    ({'sim_set': {'episode.time_limt': 1.0}}, 'sim_set', 'time_limt'),
+    ({'sim_set': {'robot.radius': 0.4}}, 'arenas: mine.yaml', 'robot radius 0.4 m'),
+    ({'grids': [{'seeds': 2}, {'protocols': ['nope']}]}, 'grids[1].protocols[0]', 'wander'),
+]
+
+
+@pytest.mark.parametrize('change, key, allowed', BAD, ids=[b[1] for b in BAD])
+def test_a_bad_grid_value_fails_in_one_line_before_anything_runs(tmp_path, capsys, change,
+                                                                  key, allowed):
+    spec = _spec(tmp_path / 'spec', {**MICRO, **change})
+    out = tmp_path / 'out'
+    assert clis(['study', str(spec), '--out', str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and err.startswith('clis study: SPEC '), err
+    assert key in err and allowed in err, err
+    assert not out.exists()
+
+
+def test_a_bad_flag_is_one_line_and_creates_nothing(tmp_path, capsys):
+    spec = _spec(tmp_path / 'spec', MICRO)
+    (tmp_path / 'bad.yaml').write_text('arenas: [unclosed')
+    (tmp_path / 'empty').mkdir()
+    out = str(tmp_path / 'out')
+    cases = [([str(spec), '--out', out, '--workers', '0'], '--workers'),
+             ([str(spec), '--out', out, '--address', 'h:1'], '--address'),
+             (['--out', out], 'SPEC'), ([str(tmp_path / 'none.yaml'), '--out', out], 'none.yaml'),
+             ([str(tmp_path / 'bad.yaml'), '--out', out], 'not YAML'),
+             ([str(spec), '--out', str(spec)], 'not a folder'),
+             (['--report-only', '--out', str(tmp_path / 'empty')], 'no run summaries'),
+             ([str(spec), '--out', out, '--backend', 'slurm'], '--backend')]
+    for argv, name in cases:
+        try:
+            code = clis(['study', *argv])
+        except SystemExit as exc:                  # argparse's own (a choice not allowed)
+            code = exc.code
+        assert code == 2, argv
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and name in err, (argv, err)
+        assert not Path(out).exists(), argv
+
+
+def _report(out: Path) -> tuple[str, str]:
+    return (out / 'report.md').read_text(), (out / 'report.json').read_text()
+
+
+def _summaries(out: Path) -> dict[str, dict]:
+    got = {}
+    for p in sorted((out / 'runs').rglob('*.json')):
+        data = json.loads(p.read_text())
+        data.pop('seconds')
+        got[str(p.relative_to(out))] = data
+    return got
+
+
+def test_an_interrupted_study_resumed_elsewhere_reports_what_one_run_straight_through_does(
+        tmp_path, capsys, monkeypatch):
+    spec = _spec(tmp_path / 'spec', MICRO)
+    straight = tmp_path / 'straight'
+    assert clis(['study', str(spec), '--out', str(straight), '--workers', '2',
+                 '--quiet']) == 0
+    n_runs = len(_summaries(straight))
+    assert n_runs == 2 * 3 * 3
+    # interrupted (Ctrl-C) after 5 runs were stored
+    stored = study._store
+    calls = []
+
+    def store_then_stop(*args, **kwargs):
+        stored(*args, **kwargs)
+        calls.append(1)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+    monkeypatch.setattr(study, '_store', store_then_stop)
+    first = tmp_path / 'first'
+    assert clis(['study', str(spec), '--out', str(first), '--workers', '2', '--quiet']) == 130
+    monkeypatch.setattr(study, '_store', stored)
+    assert 5 <= len(_summaries(first)) < n_runs
+    assert not (first / 'report.md').exists()
+    capsys.readouterr()
+    # the same command again, without --resume: one line, nothing run
+    assert clis(['study', str(spec), '--out', str(first)]) == 2
+    assert '--resume' in capsys.readouterr().err
+    # "another machine": the folder alone, the SPEC's arena file gone
+    moved = tmp_path / 'elsewhere' / 'first'
+    shutil.copytree(first, moved)
+    shutil.rmtree(first)
+    (tmp_path / 'spec' / 'mine.yaml').unlink()
+    kept = {p: p.stat().st_mtime_ns for p in (moved / 'runs').rglob('*.json')}
+    assert clis(['study', '--resume', '--out', str(moved), '--workers', '2', '--quiet']) == 0
+    assert _summaries(moved) == _summaries(straight)
+    assert _report(moved) == _report(straight)
+    assert {p: p.stat().st_mtime_ns for p in kept} == kept       # the finished runs were kept
+    # the report is redrawn from the summaries alone
+    for name in ('report.md', 'report.json', 'forest.png', 'hidden_share.png', 'layouts.png'):
+        (moved / name).unlink()
+    shutil.rmtree(moved / 'work')
+    # a run of an earlier, larger SPEC left in DIR/runs is not reported
+    one = next((moved / 'runs').rglob('view__s1.json'))
+    stray = json.loads(one.read_text())
+    stray.update(seed=7, final={'episode': 2, 'reached': 5, 'n': 5})
+    one.with_name('view__s7.json').write_text(json.dumps(stray))
+    assert clis(['study', '--report-only', '--out', str(moved)]) == 0
+    assert _report(moved) == _report(straight)
+    assert (moved / 'forest.png').stat().st_size > 0
+    assert (moved / 'hidden_share.png').stat().st_size > 0
+    assert (moved / 'layouts.png').stat().st_size > 0
+    assert bad_rows((moved / 'report.md').read_text()) == []
+    # a resume whose settings differ from the saved runs' stops in one line
+    changed = _spec(tmp_path / 'spec2', {**MICRO, 'episodes': 4})
+    capsys.readouterr()
+    assert clis(['study', str(changed), '--out', str(moved), '--resume']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'other settings' in err and 'episodes=2' in err, err
+    # so does one whose learning parameters changed (a preset file edited, say)
+    saved = next((moved / 'runs').rglob('view__s1.json'))
+    saved.write_text(saved.read_text().replace('"params_hash": "', '"params_hash": "x'))
+    assert clis(['study', '--resume', '--out', str(moved)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'view__s1.json' in err and 'parameters (hash x' in err, err
+    assert (moved / 'report.md').read_text().startswith('# Study report: micro\n')
+
+
+def _summary(arena: str, condition: str, seed: int, reached: int, solo: dict | None = None,
+             layout_seed: int | None = 1) -> dict:
+    return {'format': study.SUMMARY_FORMAT, 'arena': arena, 'protocol': 'wander',
+            'preset': 'improved', 'condition': condition, 'seed': seed,
+            'settings': {'layout_seed': layout_seed}, 'hidden_share': 0.1,
+            'final': {'episode': 10, 'reached': reached, 'n': 50},
+            'solo': solo or {}, 'eval_curve': [], 'modules': [], 'params_hash': ''}
+
+
+def test_the_report_counts_layouts_above_and_below_with_their_intervals():
+    rows = []
+    # layout up: Async well above both singles; down: below the best; flat: not resolved
+    levels = {'up': (20, 30, 40), 'down': (20, 30, 10), 'flat': (20, 30, 30)}
+    for arena, (innate, view, asy) in levels.items():
+        for seed in range(4):
+            jitter = seed % 2
+            rows.append(_summary(arena, 'innate', seed, innate + jitter))
+            rows.append(_summary(arena, 'view', seed, view + jitter))
+            solo = {'view': {'reached': view + 5 + jitter, 'n': 50}}  # M_vi alone: +10 points
+            rows.append(_summary(arena, 'async', seed, asy + jitter - (seed == 3), solo))
+    rep = study_report.report(rows, planned=len(rows))
+    (g,) = rep['numbers']['groups']
+    assert {a: c['async_best']['verdict'] for a, c in g['layouts'].items()} == \
+        {'up': 'above', 'down': 'below', 'flat': ''}
+    assert {a: c['async_best']['best'] for a, c in g['layouts'].items()} == \
+        {'up': 'view', 'down': 'view', 'flat': 'view'}
+    ab = g['aggregate']['async_best']
+    assert (ab['above'], ab['below'], ab['unresolved'], ab['layouts']) == (1, 1, 1, 3)
+    up = g['layouts']['up']['async_best']
+    assert up['mean'] == pytest.approx(2 * (40 - 30) - 0.5)      # points: 2 per success of 50
+    assert 0 < up['half'] < up['mean']
+    assert ab['mean'] == pytest.approx((19.5 - 40.5 - 0.5) / 3)
+    th = g['aggregate']['thesis_view']
+    assert (th['above'], th['below'], th['layouts']) == (3, 0, 3)
+    assert (ab['verdict'], th['verdict']) == ('', 'above')           # over layouts
+    assert th['mean'] == pytest.approx(10.0) and th['half'] == pytest.approx(0.0)
+    assert 'thesis_place' not in g['aggregate']          # no Place condition: no test
+    md = rep['markdown']
+    assert bad_rows(md) == []
+    assert '| improved | wander | 3 | 1 above, 1 below, 1 not resolved; over 3 layouts -7.2' in md
+    assert '+19.5 ±' in md and '(view) **above**' in md
+
+
+def test_arena_generate_writes_the_same_bytes_and_show_checks_and_draws(tmp_path, capsys):
+    a, b = tmp_path / 'a.yaml', tmp_path / 'b.yaml'
+    assert clis(['arena', 'generate', '--seed', '9', '--out', str(a)]) == 0
+    assert clis(['arena', 'generate', '--seed', '9', '--out', str(b), '--png',
+                 str(tmp_path / 'b.png')]) == 0
+    assert a.read_bytes() == b.read_bytes() and (tmp_path / 'b.png').stat().st_size > 0
+    capsys.readouterr()
+    assert clis(['arena', 'generate', '--seed', '9']) == 0
+    assert capsys.readouterr().out == a.read_text()
+    assert clis(['arena', 'show', str(a), '--png', str(tmp_path / 'a.png')]) == 0
+    out = capsys.readouterr().out
+    assert out.count('in its situation') == 5 and 'NOT' not in out
+    assert clis(['arena', 'show', str(config_dir() / 'arena_alt.yaml')]) == 1
+    assert 'C: NOT in its situation' in capsys.readouterr().out
+    for argv, name in ((['generate', '--seed', '-1'], '--seed'),
+                       (['generate', '--seed', '1', '--out', str(tmp_path / 'no' / 'x.yaml')],
+                        '--out'), (['show', str(tmp_path / 'none.yaml')], 'none.yaml')):
+        assert clis(['arena', *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and name in err, err
