@@ -55,8 +55,13 @@ def _layout_into(ir: np.ndarray, bearings: np.ndarray, out: np.ndarray, low: np.
         out[n + 2 * k] = 1.0 if seen else 0.0
         out[n + 2 * k + 1] = b if seen else 0.0
     for j in range(out.shape[0]):
-        # np.clip(out, low, high): minimum(maximum(out, low), high)
-        out[j] = min(max(out[j], low[j]), high[j])
+        # np.clip(out, low, high) as numpy's clip loop: NaN kept, else
+        # MIN(MAX(x, low), high) with MAX(a, b) = a > b ? a : b (so -0.0 clips to +0.0)
+        v = out[j]
+        if not math.isnan(v):
+            v = v if v > low[j] else low[j]
+            v = v if v < high[j] else high[j]
+        out[j] = v
 
 
 class _WheelBox(spaces.Box):
