@@ -45,7 +45,7 @@ __all__ = ['ACTION_DRAWS', 'AgentStream']
 #: Standard normals of one proposal (the action u = (v_left, v_right)).
 ACTION_DRAWS = 2
 #: Ticks whose normals are drawn in one call (``episode`` selection: no uniform among them).
-BLOCK_TICKS = 240
+BLOCK_TICKS = 1200
 
 
 class AgentStream:
@@ -79,6 +79,8 @@ class AgentStream:
         self.uniform = math.nan
         self.pos = 0                           # the next tick to draw for
         self.start_state = rng.bit_generator.state
+        self._prefix_clock: DecisionClock | None = None
+        self._prefix: list[int] = []
         self._drop_block()
 
     def begin_episode(self) -> None:
@@ -98,18 +100,26 @@ class AgentStream:
         self._block = np.zeros(0)
         self._block_from = self._block_to = 0   # ticks [from, to) drawn into _block
         self._block_state: dict | None = None   # the generator before the block
-        self._block_at: list[int] = []          # offset in _block of each tick's normals
+        self._block_base = 0                    # _normals_before(_block_from)
+
+    def _normals_before(self, k: int) -> int:
+        """The normals of the ticks ``0 .. k - 1`` (tick 0 included), from the clock's
+        schedule: per cycle of ticks, then the ticks of the last part cycle."""
+        clock = self.clock
+        if self._prefix_clock is not clock:
+            prefix = [0]
+            for due in clock.schedule:
+                prefix.append(prefix[-1] + ACTION_DRAWS * len(due))
+            self._prefix, self._prefix_clock = prefix, clock
+        q, r = divmod(k, clock.cycle)
+        return q * self._prefix[-1] + self._prefix[r]
 
     def _draw_block(self, k: int) -> None:
         """Draw the normals of the ticks ``k .. k + BLOCK_TICKS - 1`` in one call."""
-        clock = self.clock
         self._block_state = self.rng.bit_generator.state
-        at, n = [], 0
-        for j in range(k, k + BLOCK_TICKS):
-            at.append(n)
-            n += ACTION_DRAWS * len(clock.due_at(j))
-        self._block = self.rng.standard_normal(n)
-        self._block_at = at
+        self._block_base = self._normals_before(k)
+        self._block = self.rng.standard_normal(self._normals_before(k + BLOCK_TICKS)
+                                               - self._block_base)
         self._block_from, self._block_to = k, k + BLOCK_TICKS
 
     def _take(self, j: int, k: int) -> None:
@@ -122,7 +132,7 @@ class AgentStream:
             self._draw_block(self._block_to)
         due = self.clock.due_at(k)
         if due:
-            o = self._block_at[k - self._block_from]
+            o = self._normals_before(k) - self._block_base
             for i in due:
                 self.normals[i] = self._block[o:o + ACTION_DRAWS]
                 o += ACTION_DRAWS
@@ -132,8 +142,7 @@ class AgentStream:
         block drawn past it is given back)."""
         if self._block_state is not None and self.pos < self._block_to:
             self.rng.bit_generator.state = self._block_state
-            n = sum(ACTION_DRAWS * len(self.clock.due_at(j))
-                    for j in range(self._block_from, self.pos))
+            n = self._normals_before(self.pos) - self._block_base
             if n:
                 self.rng.standard_normal(n)
         self._drop_block()
