@@ -233,6 +233,7 @@ class Selector:
         self.index = {n: i for i, n in enumerate(self.names)}
         self.gammas = np.asarray(gammas, dtype=np.float64)
         self.v_max = np.asarray(v_max, dtype=np.float64)
+        self._v_max = self.v_max.tolist()
         self.max_age = params.stale_periods * np.asarray(periods, dtype=np.float64)
         self._max_age = self.max_age.tolist()
         self.start_timeout = params.start_timeout
@@ -352,10 +353,13 @@ class Selector:
     def _command(self, t: float, i: int, drawn: bool) -> Command:
         self.acting = i
         u = self.latest[i].u
-        v = self.v_max[i]
+        v = self._v_max[i]
         # the robot executes the acting proposal within its speed limit (docs/design.md §3)
-        # = np.clip(u, -v, v), without its Python wrapper
-        return Command(float(t), i, u, np.minimum(np.maximum(u, -v), v), drawn)
+        # = np.minimum(np.maximum(u, -v), v) on the two components as Python floats (the
+        # same comparisons: NaN kept, v > 0)
+        u0, u1 = u.tolist()
+        return Command(float(t), i, u, np.array((min(max(u0, -v), v), min(max(u1, -v), v))),
+                       drawn)
 
     def _stop(self, t: float) -> Command:
         return Command(float(t), -1, np.zeros(2), np.zeros(2), False)
