@@ -15,7 +15,7 @@ removed at the end) and run from its own ``src`` and ``config`` (on ``PYTHONPATH
 The two experiments' ``episodes.csv`` are then compared row for row: the speed-up is only one
 if the results are the same to the bit (the last line says whether they are).
 
-    python bench/bench_speedup.py [--base 949756d] [--seeds 10] [--episodes 1000]
+    python bench/bench_speedup.py [--base 949756d] [--new REV] [--seeds 10] [--episodes 1000]
                                   [--cost-episodes 300] [--workers 2] [--json FILE]
 
 Each build's numba kernels are compiled (or loaded from their cache) by a short warm-up
@@ -77,7 +77,7 @@ def current_build() -> Build:
     return Build('this checkout', ROOT, dict(os.environ))
 
 
-def base_build(rev: str, where: Path) -> Build:
+def worktree_build(name: str, rev: str, where: Path) -> Build:
     """``rev`` checked out at ``where`` (a detached git worktree), run from its ``src``."""
     subprocess.run(['git', '-C', str(ROOT), 'worktree', 'add', '--detach', '--force',
                     str(where), rev], check=True, capture_output=True)
@@ -85,7 +85,7 @@ def base_build(rev: str, where: Path) -> Build:
     paths = [str(p) for p in sorted(src.iterdir()) if p.is_dir()]
     env = dict(os.environ, CLIS_CONFIG_DIR=str(where / 'config'),
                PYTHONPATH=os.pathsep.join(paths + [os.environ.get('PYTHONPATH', '')]))
-    return Build(f'base {rev}', where, env)
+    return Build(name, where, env)
 
 
 def children_cpu() -> float:
@@ -144,6 +144,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--base', default='949756d', help='the commit to compare with')
+    ap.add_argument('--new', metavar='REV',
+                    help='measure this commit (in a worktree of its own) instead of the '
+                         'checkout: the code stays what it was while the benchmark runs')
     ap.add_argument('--seeds', type=int, default=10)
     ap.add_argument('--episodes', type=int, default=1000)
     ap.add_argument('--cost-episodes', type=int, default=300,
@@ -154,10 +157,12 @@ def main() -> int:
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix='bench_speedup_'))
     keep = args.keep or tmp
-    base = None
+    base = new = None
     try:
-        base = base_build(args.base, tmp / 'worktree')
-        builds = [base, current_build()]
+        base = worktree_build(f'base {args.base}', args.base, tmp / 'worktree')
+        new = (worktree_build('this checkout', args.new, tmp / 'worktree_new') if args.new
+               else current_build())
+        builds = [base, new]
         for b in builds:                                     # kernels compiled or loaded
             experiment(b, tmp / 'warm', 1, 2, 1, 'async')
         cost = {}
@@ -174,9 +179,10 @@ def main() -> int:
         same, how = same_rows(keep / 'exp_base' / 'episodes.csv',
                               keep / 'exp_new' / 'episodes.csv')
     finally:
-        if base is not None:
-            subprocess.run(['git', '-C', str(ROOT), 'worktree', 'remove', '--force',
-                            str(base.root)], capture_output=True)
+        for b in (base, new):
+            if b is not None and b.root != ROOT:
+                subprocess.run(['git', '-C', str(ROOT), 'worktree', 'remove', '--force',
+                                str(b.root)], capture_output=True)
         if args.keep is None:
             shutil.rmtree(tmp, ignore_errors=True)
     (wb, cb), (wn, cn) = times[base.name], times['this checkout']
@@ -185,7 +191,7 @@ def main() -> int:
           f'episodes, --eval-every 0, {args.workers} workers):')
     print(f'  {"":16s} {"wall":>14s} {"CPU":>14s}')
     print(f'  {"base " + args.base:16s} {fmt(wb):>14s} {fmt(cb):>14s}')
-    print(f'  {"this checkout":16s} {fmt(wn):>14s} {fmt(cn):>14s}')
+    print(f'  {(args.new or "this checkout"):16s} {fmt(wn):>14s} {fmt(cn):>14s}')
     print(f'  {"ratio":16s} {wb / wn:13.2f}x {cb / cn:13.2f}x   (goal >= {GOAL:.0f}x)')
     rows = [{'measure': f'reproduction workload, wall: base {args.base} / this checkout',
              'value': f'{fmt(wb)} / {fmt(wn)} = {wb / wn:.2f}x', 'goal': f'>= {GOAL:.0f}x'},
