@@ -1,11 +1,13 @@
 """Every compiled kernel of the fast paths equals its reference implementation bit for bit on
 random inputs (hypothesis): the gym observation layout; and the agent stream's draws made a
-block of ticks at a time equal those made tick by tick."""
+block of ticks at a time equal those made tick by tick; the episode times of a cut computed on
+an array equal those computed one by one."""
 
 from __future__ import annotations
 
 import math
 
+from clis_learner.core.memory import episode_time, episode_times
 from cr_sim.core.instants import DecisionClock
 from cr_sim.core.streams import AgentStream
 from cr_sim.gym_env import _layout, _layout_into
@@ -84,3 +86,16 @@ def test_agent_stream_blocks_equal_the_draws_tick_by_tick(periods, selection, se
         ref.end_episode(k_end)
         assert fast.state() == ref.state()
         assert fast.rng.bit_generator.state == ref.rng.bit_generator.state
+
+
+@PROPERTY
+@given(st.lists(st.one_of(st.integers(0, 2000).map(lambda k: k * 0.05),
+                          st.floats(0.0, 100.0, allow_nan=False),
+                          st.integers(0, 2000).map(lambda k: k * 0.05 + 0.025)),
+                min_size=0, max_size=60),
+       st.sampled_from([0.0, 12.35, 1e3 + 0.05]), st.sampled_from([0.05, 0.0, 0.1]))
+def test_episode_times_on_an_array_equal_episode_time(offsets, t0, dt):
+    ts = [t0 + o for o in offsets]
+    want = [episode_time(t, t0, dt) for t in ts]
+    got = episode_times(ts, t0, dt)
+    assert [float(v).hex() for v in got] == [float(v).hex() for v in want]
