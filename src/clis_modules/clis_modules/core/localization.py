@@ -264,7 +264,8 @@ class MarkovLocalizer:
             if odometry is not None:
                 self.predict(*odometry)
             self.update(landmark_bearings)
-            return self._p.reshape(-1).copy()
+            # each update that changes the belief makes a new array: copy only the belief
+            return (self._p.copy() if self._p is saved else self._p).reshape(-1)
         finally:
             self._p = saved
 
