@@ -284,17 +284,22 @@ class Selector:
     def on_proposals(self, proposals: Sequence[Proposal], now: float) -> Command | None:
         """New proposals (decided at the same instant) at time ``now``; the new command, or
         None if the command in force does not change."""
+        if not proposals:
+            return None
+        t = proposals[0].t                   # their latest time: max(p.t for p in proposals)
+        i = self.acting
+        name = self.names[i] if i >= 0 else None
+        acting_due = False
         for p in proposals:
             self.latest[self.index[p.module]] = p
-        if not self.running or not proposals:
+            t = max(t, p.t)
+            acting_due = acting_due or p.module == name
+        if not self.running:
             return None
-        t = max(p.t for p in proposals)
-        i = self.acting
         if not self.waiting and self.mode == 'episode' and i >= 0 and self._fresh_one(i, now):
             # the acting module is still fresh: it keeps acting (as below, without every
             # module's freshness)
-            name = self.names[i]
-            if any(p.module == name for p in proposals):
+            if acting_due:
                 return self._command(t, i, drawn=False)
             return None
         ok = self.fresh(now)
