@@ -99,6 +99,22 @@ class EpisodeMemory:
             ts.append(t)
             bs.append(b)
 
+    def _add_decision(self, module: str, t: float, b: ArrayLike) -> None:
+        """:meth:`record_decision` with ``b`` handed over, not copied (as
+        :meth:`StreamBuffer.add_decision` then :meth:`StreamBuffer.cut` hand it over)."""
+        self._check_open()
+        ts = self._dec_t[module]
+        if ts and t <= ts[-1] + TIME_TOL:
+            raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
+        ts.append(float(t))
+        self._dec_b[module].append(np.asarray(b, dtype=np.float64).reshape(-1))
+
+    def _add_observation(self, module: str, t: float, b: ArrayLike) -> None:
+        """:meth:`record_observation` with ``b`` handed over, not copied, and times in
+        order (as :meth:`StreamBuffer.add_observation` then :meth:`StreamBuffer.cut`)."""
+        self._check_open()
+        self._obs[module].append((float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
+
     def record_observation(self, module: str, t: float, b: ArrayLike) -> None:
         """Module ``module``'s features ``b`` (copied), shape (n,), at time ``t`` [s], an
         instant at which it did not decide (times of one module increase)."""
