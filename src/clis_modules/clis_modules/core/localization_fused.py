@@ -301,16 +301,19 @@ def _shift_into(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, 
         for i in range(nx):
             for j in range(ny):
                 padded[k, pad + i, pad + j] = p[k, i, j]
+    # a[c] = (1 - f_x) row0[c] + f_x row1[c] once per column c of the padded rows: the x shift
+    # of column o + j is a0 of cell j and a1 of cell j + 1
+    a = np.empty(ny + 1)
     for k in range(n_k):
         gx, gy, fxk, fyk = 1.0 - fx[k], 1.0 - fy[k], fx[k], fy[k]
         o = pad - iy[k]
         for i in range(nx):
-            row0 = padded[k, pad + i - ix[k]]
-            row1 = padded[k, pad + i - ix[k] - 1]
+            r0 = pad + i - ix[k]
+            for c in range(ny + 1):
+                a[c] = gx * padded[k, r0, o - 1 + c] + fxk * padded[k, r0 - 1, o - 1 + c]
             for j in range(ny):
-                a0 = gx * row0[o + j] + fxk * row1[o + j]
-                a1 = gx * row0[o + j - 1] + fxk * row1[o + j - 1]
-                q[k, i, j] = gy * a0 + fyk * a1
+                # a0 = a[j + 1] (column o + j), a1 = a[j] (column o + j - 1)
+                q[k, i, j] = gy * a[j + 1] + fyk * a[j]
     if ft == 0.0:
         for k in range(n_k):
             out[k] = q[(k - it) % n_k]
