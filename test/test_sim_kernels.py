@@ -8,11 +8,11 @@ from types import SimpleNamespace
 
 from clis_modules.core.decider import Decider
 from clis_modules.core.features import RbfGrid, uniform_centers
-from clis_modules.core.localization import (
-    _EVIDENCE_MIN,
-    _EXP_LOG_LIK_MIN,
-    _LOG_LIK_MIN,
-    MarkovLocalizer,
+from clis_modules.core.localization import MarkovLocalizer
+from clis_modules.core.localization_fused import EVIDENCE_MIN as _EVIDENCE_MIN
+from clis_modules.core.localization_fused import EXP_LOG_LIK_MIN as _EXP_LOG_LIK_MIN
+from clis_modules.core.localization_fused import LOG_LIK_MIN as _LOG_LIK_MIN
+from clis_modules.core.localization_fused import (
     _blur,
     _gaussian_weights,
     _log_likelihood,
@@ -378,7 +378,7 @@ def test_localization_fused_predict_and_update_are_the_reference_bit_for_bit(wor
 
 
 def test_pairwise_sum_is_numpys_sum():
-    from clis_modules.core.localization import _pairwise_sum as pairwise
+    from clis_modules.core.localization_fused import _pairwise_sum as pairwise
     rng = np.random.default_rng(8)
     for n in list(range(0, 300)) + [1600, 4800, 4801, 9999]:
         a = rng.random(n) * rng.choice([1e-9, 1.0, 1e7], n)

@@ -40,6 +40,30 @@ def _layout(ir: np.ndarray, bearings: np.ndarray, out: np.ndarray, low: np.ndarr
     np.clip(out, low, high, out=out)
 
 
+@kernels.njit
+def _layout_into(ir: np.ndarray, bearings: np.ndarray, out: np.ndarray, low: np.ndarray,
+                 high: np.ndarray) -> None:
+    """:func:`_layout` of one robot, compiled: ``ir`` (n_ir,), ``bearings`` (T,) float64 into
+    ``out`` (n_ir + 2 T,) float32, the same values (each float64 rounded to float32 once, as
+    numpy's assignment does, then clipped in float32)."""
+    n = ir.shape[0]
+    for j in range(n):
+        out[j] = ir[j]
+    for k in range(bearings.shape[0]):
+        b = bearings[k]
+        seen = not math.isnan(b)
+        out[n + 2 * k] = 1.0 if seen else 0.0
+        out[n + 2 * k + 1] = b if seen else 0.0
+    for j in range(out.shape[0]):
+        # np.clip(out, low, high) as numpy's clip loop: NaN kept, else
+        # MIN(MAX(x, low), high) with MAX(a, b) = a > b ? a : b (so -0.0 clips to +0.0)
+        v = out[j]
+        if not math.isnan(v):
+            v = v if v > low[j] else low[j]
+            v = v if v < high[j] else high[j]
+        out[j] = v
+
+
 class _WheelBox(spaces.Box):
     """The action space: a bounded float32 :class:`gymnasium.spaces.Box` whose ``sample()``
     draws exactly what ``Box.sample()`` draws (one ``uniform(low, high)`` call on
@@ -155,6 +179,7 @@ class CRNavEnv(gym.Env):
         self._n_ir = n_ir
         self._bearings = np.empty(n_t)
         self._low, self._high = self.observation_space.low, self.observation_space.high
+        self._n_obs = self.observation_space.shape[0]
         self._sim: Simulator | None = None
 
     @property
@@ -193,10 +218,21 @@ class CRNavEnv(gym.Env):
         return self._vector(obs), self._info()
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        """Apply wheel velocities for one step; see the class docstring."""
-        res = self.sim.step(action, observe=True)
-        return (self._vector(res.obs), float(res.reward), bool(res.reached), bool(res.timeout),
-                self._info(res.collision))
+        """Apply wheel velocities for one step; see the class docstring.
+
+        The observation vector is laid out from the simulator's sensors of the step
+        (:meth:`Simulator.sense_all`'s IR and bearings, the values and noise of
+        :meth:`Simulator.observe`) in one compiled call (:func:`_layout_into`, the arithmetic
+        of :func:`_layout`), without an :class:`Observation` made.
+        """
+        sim = self.sim
+        res = sim.step(action)
+        ir, bearings, _ = sim._sensors()
+        out = np.empty(self._n_obs, dtype=np.float32)
+        _layout_into(ir, bearings, out, self._low, self._high)
+        return (out, float(res.reward), res.reached, res.timeout,
+                {'pose': np.array((sim._x, sim._y, sim._th)), 'collision': res.collision,
+                 't': res.t, 'wheels': np.array((sim._wl, sim._wr))})
 
 
 class CRNavVectorEnv(VectorEnv):

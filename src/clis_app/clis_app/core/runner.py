@@ -137,8 +137,9 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
     stream.begin_episode()
     episodes.start(0.0, 0, start if isinstance(start, str) else 'pose', dt)
     u_exec = np.zeros(2)
-    # the acting module's features at the other modules' instants (learner.behaviour_state)
-    observe = (agent.params.learner.behaviour_state == 'resampled'
+    # the acting module's features at the other modules' instants (learner.behaviour_state),
+    # read only by the learner's replay: none for an episode it does not learn from
+    observe = (learn and agent.params.learner.behaviour_state == 'resampled'
                and agent.params.learner.behaviour == 'acting' and len(deciders) > 1)
     k = 0
     while True:

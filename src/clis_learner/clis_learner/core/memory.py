@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ['TIME_TOL', 'EpisodeMemory', 'StreamBuffer', 'episode_time']
+__all__ = ['TIME_TOL', 'EpisodeMemory', 'StreamBuffer', 'episode_time', 'episode_times']
 
 #: Two times closer than this [s] are the same instant.
 TIME_TOL = 1e-6
@@ -98,6 +98,22 @@ class EpisodeMemory:
                 raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
             ts.append(t)
             bs.append(b)
+
+    def _add_decision(self, module: str, t: float, b: ArrayLike) -> None:
+        """:meth:`record_decision` with ``b`` handed over, not copied (as
+        :meth:`StreamBuffer.add_decision` then :meth:`StreamBuffer.cut` hand it over)."""
+        self._check_open()
+        ts = self._dec_t[module]
+        if ts and t <= ts[-1] + TIME_TOL:
+            raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
+        ts.append(float(t))
+        self._dec_b[module].append(np.asarray(b, dtype=np.float64).reshape(-1))
+
+    def _add_observation(self, module: str, t: float, b: ArrayLike) -> None:
+        """:meth:`record_observation` with ``b`` handed over, not copied, and times in
+        order (as :meth:`StreamBuffer.add_observation` then :meth:`StreamBuffer.cut`)."""
+        self._check_open()
+        self._obs[module].append((float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
 
     def record_observation(self, module: str, t: float, b: ArrayLike) -> None:
         """Module ``module``'s features ``b`` (copied), shape (n,), at time ``t`` [s], an
@@ -320,13 +336,18 @@ class StreamBuffer:
 
         def rel(t: float) -> float:
             return episode_time(t, t0, dt)
+
+        def relative(items: list) -> list:
+            """``items`` with their times made the episode's (:func:`episode_times`)."""
+            times = episode_times([it[0] for it in items], t0, dt)
+            return [(t, *it[1:]) for t, it in zip(times, items)]
         mem.t_start = float(t0) if dt <= 0.0 else 0.0
         for name, items in self._dec.items():
-            mem._take_decisions(name, [(rel(t), b) for t, b in _take(items, lo, hi)])
+            mem._take_decisions(name, relative(_take(items, lo, hi)))
         for name, items in self._obs.items():
-            mem._obs[name] = [(rel(t), b) for t, b in _take(items, lo, hi)]
-        for t, u, who in _take(self._act, lo, hi):
-            mem.record_action(rel(t), u, who)
+            mem._obs[name] = relative(_take(items, lo, hi))
+        for t, u, who in relative(_take(self._act, lo, hi)):
+            mem.record_action(t, u, who)
         for t, r in _take(self._rew, t0 + TIME_TOL, t_end + TIME_TOL):
             mem.record_reward(rel(t), r)
         mem.end(rel(t_end), reached)
@@ -341,6 +362,17 @@ def episode_time(t: float, t0: float, dt: float) -> float:
         return t
     k = round((t - t0) / dt)
     return k * dt if abs(t - t0 - k * dt) <= TIME_TOL else t - t0
+
+
+def episode_times(ts: list[float], t0: float, dt: float) -> list[float]:
+    """``[episode_time(t, t0, dt) for t in ts]``: the same operations on an array (numpy's
+    ``rint`` rounds half to even, as Python's ``round``)."""
+    if dt <= 0.0 or len(ts) < 16:
+        return [episode_time(t, t0, dt) for t in ts]
+    t = np.asarray(ts, dtype=np.float64)
+    k = np.rint((t - t0) / dt)
+    kdt = k * dt
+    return np.where(np.abs(t - t0 - kdt) <= TIME_TOL, kdt, t - t0).tolist()
 
 
 def _insert(items: list, item: tuple) -> None:

@@ -36,7 +36,7 @@ import numpy as np
 from clis_learner.core.config import ClisParams
 from clis_learner.core.episodes import episode_row
 from clis_learner.core.learner import Learner
-from clis_learner.core.memory import TIME_TOL, EpisodeMemory, StreamBuffer
+from clis_learner.core.memory import TIME_TOL, EpisodeMemory, StreamBuffer, episode_time
 
 __all__ = ['Closed', 'EpisodeStream']
 
@@ -76,7 +76,11 @@ class EpisodeStream:
         may say another: :meth:`start`).
     whole : bool
         Every record of every episode is fed (the headless runner): every episode is held from
-        its start, whatever its first reward.
+        its start, whatever its first reward; the records of an episode come in time order,
+        between its :meth:`start` and its :meth:`end`, so each goes straight into the
+        episode's :class:`~clis_learner.core.memory.EpisodeMemory` (what
+        :meth:`~clis_learner.core.memory.StreamBuffer.cut` would make of them, without the
+        buffer).
     """
 
     def __init__(self, modules: Sequence[ModuleCore], params: ClisParams, condition: str,
@@ -99,9 +103,15 @@ class EpisodeStream:
 
     # ------------------------------------------------------------------ records
 
+    def _rel(self, t: float) -> float:
+        """Time ``t`` counted from the running episode's start (:meth:`StreamBuffer.cut`)."""
+        return episode_time(t, self.episode['t0'], self.clock.dt)
+
     def proposal(self, p: Proposal) -> bool:
         """A module's proposal; False if it was a copy (already there)."""
-        if not self.buffer.add_decision(p.module, p.t, p.b):
+        if self.whole:
+            self.memory._add_decision(p.module, self._rel(p.t), p.b)
+        elif not self.buffer.add_decision(p.module, p.t, p.b):
             return False
         if self.episode is not None and p.t >= self.episode['t0'] - TIME_TOL \
                 and p.version != self.version:
@@ -116,6 +126,9 @@ class EpisodeStream:
             return
         if acting not in self.names:
             raise KeyError(acting)
+        if self.whole:
+            self.memory.record_action(self._rel(t), u, acting)
+            return
         self.buffer.add_action(t, u, acting)
 
     def selection(self, t: float, probs: Mapping[str, float],
@@ -127,12 +140,18 @@ class EpisodeStream:
     def observation(self, module: str, t: float, b: np.ndarray) -> None:
         """Module ``module``'s features at ``t``, an instant at which it did not decide
         (:meth:`~clis_learner.core.memory.StreamBuffer.add_observation`)."""
+        if self.whole:
+            self.memory._add_observation(module, self._rel(t), b)
+            return
         self.buffer.add_observation(module, t, b)
 
     def reward(self, t: float, r: float) -> None:
         """The reward of the step that ended at ``t``."""
         self.first_reward_t = min(self.first_reward_t, t)
         self.reward_t = max(self.reward_t, t)
+        if self.whole:
+            self.memory.record_reward(self._rel(t), r)
+            return
         self.buffer.add_reward(t, r)
 
     def start(self, t: float, index: int, start: str, dt: float | None = None) -> Closed | None:
@@ -142,6 +161,9 @@ class EpisodeStream:
         if dt is not None and dt != self.clock.dt:
             self.clock = DecisionClock([m.period for m in self.modules], dt)
         self.episode = {'index': index, 't0': t, 'start': start, 'stale': 0}
+        if self.whole:
+            self.memory.clear()
+            self.memory.t_start = float(t) if self.clock.dt <= 0.0 else 0.0
         return closed
 
     def end(self, t: float, index: int, event: str, deadline: float = math.inf,
@@ -199,9 +221,13 @@ class EpisodeStream:
         ep, c = self.episode, self.closing
         if ep is None or c is None:
             raise RuntimeError('no ended episode to close')
+        if self.whole:                  # its records are in its memory already
+            mem = self.memory
+            mem.end(self._rel(c['t_end']), c['reached'])
+        else:
+            mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory,
+                                  dt=self.clock.dt)
         self.episode = self.closing = None
-        mem = self.buffer.cut(ep['t0'], c['t_end'], c['reached'], self.memory,
-                              dt=self.clock.dt)
         probs, values = self._first_draw(ep['t0'], c['t_end'])
         # every reward of the episode arrived iff they sum to the simulator's return
         ret = float(mem.rewards()[1].sum())

@@ -233,6 +233,7 @@ class Selector:
         self.index = {n: i for i, n in enumerate(self.names)}
         self.gammas = np.asarray(gammas, dtype=np.float64)
         self.v_max = np.asarray(v_max, dtype=np.float64)
+        self._v_max = self.v_max.tolist()
         self.max_age = params.stale_periods * np.asarray(periods, dtype=np.float64)
         self._max_age = self.max_age.tolist()
         self.start_timeout = params.start_timeout
@@ -283,17 +284,22 @@ class Selector:
     def on_proposals(self, proposals: Sequence[Proposal], now: float) -> Command | None:
         """New proposals (decided at the same instant) at time ``now``; the new command, or
         None if the command in force does not change."""
+        if not proposals:
+            return None
+        t = proposals[0].t                   # their latest time: max(p.t for p in proposals)
+        i = self.acting
+        name = self.names[i] if i >= 0 else None
+        acting_due = False
         for p in proposals:
             self.latest[self.index[p.module]] = p
-        if not self.running or not proposals:
+            t = max(t, p.t)
+            acting_due = acting_due or p.module == name
+        if not self.running:
             return None
-        t = max(p.t for p in proposals)
-        i = self.acting
         if not self.waiting and self.mode == 'episode' and i >= 0 and self._fresh_one(i, now):
             # the acting module is still fresh: it keeps acting (as below, without every
             # module's freshness)
-            name = self.names[i]
-            if any(p.module == name for p in proposals):
+            if acting_due:
                 return self._command(t, i, drawn=False)
             return None
         ok = self.fresh(now)
@@ -352,10 +358,13 @@ class Selector:
     def _command(self, t: float, i: int, drawn: bool) -> Command:
         self.acting = i
         u = self.latest[i].u
-        v = self.v_max[i]
+        v = self._v_max[i]
         # the robot executes the acting proposal within its speed limit (docs/design.md §3)
-        # = np.clip(u, -v, v), without its Python wrapper
-        return Command(float(t), i, u, np.minimum(np.maximum(u, -v), v), drawn)
+        # = np.minimum(np.maximum(u, -v), v) on the two components as Python floats (the
+        # same comparisons: NaN kept, v > 0)
+        u0, u1 = u.tolist()
+        return Command(float(t), i, u, np.array((min(max(u0, -v), v), min(max(u1, -v), v))),
+                       drawn)
 
     def _stop(self, t: float) -> Command:
         return Command(float(t), -1, np.zeros(2), np.zeros(2), False)

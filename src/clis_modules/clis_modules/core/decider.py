@@ -105,15 +105,19 @@ class Decider:
         self._first = False
         b = m.feature_fn(percept)
         pol = m.policy
-        # (10) mean v_max W_i b (GaussianPolicy.mean; b is a fresh float64 array already)
-        mean = pol.v_max * (pol.W @ b)
         sigma = pol.sigma_at(b)
-        # (10) u ~ N(v_max W_i b, sigma_i^2 I)
-        u = mean + sigma * self.rng.standard_normal(ACTION_DIM)
+        # (10) mean v_max W_i b (GaussianPolicy.mean; b is a fresh float64 array already),
+        # u ~ N(v_max W_i b, sigma_i^2 I): numpy's element-wise products and sums of the two
+        # components, done on Python floats (the same IEEE operations, without four arrays)
+        wb0, wb1 = (pol.W @ b).tolist()
+        n0, n1 = self.rng.standard_normal(ACTION_DIM).tolist()
+        v_max = pol.v_max
+        m0, m1 = v_max * wb0, v_max * wb1
         # (1)(2) V_i(x) = w_i^T b_i(x) (LinearValue.__call__)
         value = float(m.value_fn.w @ b)
-        return Proposal(m.name, float(percept.t), b, u, mean, float(sigma), value,
-                        self.version)
+        return Proposal(m.name, float(percept.t), b,
+                        np.array((m0 + sigma * n0, m1 + sigma * n1)), np.array((m0, m1)),
+                        float(sigma), value, self.version)
 
     def observe(self, percept: Percept) -> np.ndarray:
         """Features ``b_i(x(t))`` at ``percept.t``, an instant at which the module does not

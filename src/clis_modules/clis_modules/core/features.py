@@ -163,11 +163,11 @@ class RbfGrid:
         if self.n_rbf > _PAIRWISE_BLOCK:
             return self.batch(np.array([x], dtype=np.float64))[0]
         b = np.zeros(self.n)
-        if any(math.isnan(v) for v in x):
-            b[-1] = 1.0                                  # not visible: b = e_n
-            return b
         xs = self._x
         for k, v in enumerate(x):
+            if v != v:                                   # NaN
+                b[-1] = 1.0                              # not visible: b = e_n
+                return b
             xs[k] = v
         # b_j(x) = exp(-||x - x_j||^2 / phi), one dimension at a time (III-B, III-C)
         _rbf_into(xs, self._flat_centers, self._sizes, self.phi, self._periodic,

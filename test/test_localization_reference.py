@@ -1,0 +1,80 @@
+"""The place module's Markov localization: its compiled updates (MarkovLocalizer, through
+clis_modules.core.localization_fused) give the beliefs of the paper's updates as written in
+numpy and scipy (clis_modules.core.localization_reference), bit for bit, on random beliefs,
+odometry and bearings."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+from clis_modules.core import localization_reference as ref
+from clis_modules.core.localization import MarkovLocalizer
+from clis_modules.core.modules import arena_map, load_module_params
+from cr_sim.core.arena import load_arena
+from hypothesis import given, settings
+from hypothesis import strategies as st
+import numpy as np
+
+PROPERTY = settings(max_examples=60, deadline=None)
+
+
+@functools.cache
+def _localizer(floor: float) -> MarkovLocalizer:
+    lm, half, boxes = arena_map(load_arena())
+    prm = dataclasses.replace(load_module_params().place.localization, floor=floor)
+    return MarkovLocalizer(prm, lm, half, boxes)
+
+
+def _belief(loc: MarkovLocalizer, seed: int, sharpness: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    p = rng.random(loc.shape) ** sharpness * loc._free
+    return p / p.sum()
+
+
+odometry = st.tuples(st.floats(-0.8, 0.8), st.floats(-0.3, 0.3), st.floats(-4.0, 4.0))
+bearing = st.one_of(st.just(math.nan), st.floats(-math.pi, math.pi))
+
+
+@PROPERTY
+@given(st.sampled_from([1e-6, 0.0, 0.05]), st.integers(0, 2**32 - 1),
+       st.sampled_from([1, 8, 40]), odometry,
+       st.sampled_from([None, (0.0, 0.0, 0.0), (3.0, -2.0, 9.0)]))
+def test_predict_is_the_reference(floor, seed, sharpness, odo, special):
+    loc = _localizer(floor)
+    dx, dy, dth = odo if special is None else special
+    loc.set_belief(_belief(loc, seed, sharpness))
+    p = loc._p.copy()                      # set_belief normalises again
+    want = ref.predict(loc, p, dx, dy, dth)
+    loc.predict(dx, dy, dth)
+    assert loc._p.tobytes() == want.tobytes()
+
+
+@PROPERTY
+@given(st.sampled_from([1e-6, 0.0, 0.05]), st.integers(0, 2**32 - 1),
+       st.sampled_from([1, 8, 40]), st.lists(bearing, min_size=4, max_size=4))
+def test_update_is_the_reference(floor, seed, sharpness, z):
+    loc = _localizer(floor)
+    loc.set_belief(_belief(loc, seed, sharpness))
+    p = loc._p.copy()
+    want = ref.update(loc, p, z)
+    loc.update(z)
+    assert loc._p.tobytes() == want.tobytes()
+
+
+def test_a_trajectory_is_the_reference():
+    """Predict and update in turn, from the uniform belief, as the place module does."""
+    loc = _localizer(1e-6)
+    loc.reset()
+    rng = np.random.default_rng(11)
+    p = loc._p.copy()
+    for _ in range(30):
+        dx, dy, dth = rng.normal(0.0, [0.2, 0.05, 0.5])
+        z = rng.uniform(-math.pi, math.pi, 4)
+        z[rng.random(4) < 0.25] = np.nan
+        p = ref.update(loc, ref.predict(loc, p, dx, dy, dth), z)
+        loc.predict(dx, dy, dth)
+        loc.update(z)
+        assert loc._p.tobytes() == p.tobytes()
+    assert p.max() > 10 * p.mean()            # the belief has concentrated
