@@ -203,3 +203,37 @@ def _initialised_then_waits(initializer) -> None:
     initializer()
     while True:
         time.sleep(0.1)
+
+
+def _sigterm_ignored() -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+def _forever() -> None:
+    while True:
+        time.sleep(0.1)
+
+
+def test_the_pools_termination_ends_with_a_worker_that_survived_its_sigterm():
+    """A worker that took the termination's SIGTERM before its initializer (one the pool
+    forked while it was being terminated, with the forking process's handler) survives it:
+    the termination kills it after its grace and returns (``pool.terminate()`` alone waits
+    for it forever)."""
+    import multiprocessing as mp
+    import threading
+
+    from clis_app.experiment import _terminate
+
+    pool = mp.get_context('fork').Pool(processes=1, initializer=_sigterm_ignored)
+    pool.apply_async(_forever)
+    time.sleep(0.5)                        # the task taken: the worker runs it
+    ended = threading.Event()
+    stopper = threading.Thread(target=lambda: (_terminate(pool, grace=0.2), ended.set()),
+                               daemon=True)
+    stopper.start()
+    try:
+        assert ended.wait(60), 'the termination waits for a worker that survived SIGTERM'
+    finally:
+        for child in mp.active_children():
+            if 'PoolWorker' in child.name:
+                child.kill()

@@ -29,6 +29,7 @@ from pathlib import Path
 import queue
 import signal
 import sys
+import threading
 import time
 from typing import Any
 
@@ -470,7 +471,7 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool,
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         raise
     try:
-        with pool:
+        try:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})   # delivered here
             pending = [pool.apply_async(_worker, (spec, q)) for spec in todo]
             remap = {s.index: k for k, s in enumerate(todo)}
@@ -488,8 +489,32 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool,
                     progress.update(remap[index], episodes, note)
             for p in pending:
                 p.get()
+        finally:
+            _terminate(pool)
     finally:
         manager.shutdown()
+
+
+def _terminate(pool: mp.pool.Pool, grace: float = 1.0) -> None:
+    """``pool.terminate()``, killing every pool worker still alive each ``grace`` seconds
+    until it returns. A worker that the pool forks while it is being terminated (one per
+    finished run: ``maxtasksperchild=1``) may take the termination's SIGTERM before its
+    initializer restores the default (in a handler inherited from the forking process), and
+    would then wait on the pool's queue, and the pool's join wait for it."""
+    done = threading.Event()
+
+    def reap() -> None:
+        while not done.wait(grace):
+            for child in mp.active_children():
+                if 'PoolWorker' in child.name:
+                    child.kill()
+    reaper = threading.Thread(target=reap, name='pool-reaper', daemon=True)
+    reaper.start()
+    try:
+        pool.terminate()
+    finally:
+        done.set()
+        reaper.join()
 
 
 def _worker_signals() -> None:
