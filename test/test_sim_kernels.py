@@ -287,7 +287,7 @@ def test_rbf_single_input_is_the_batch_row_bit_for_bit():
 
 
 def _predict_reference(loc, dx, dy, dtheta):
-    """MarkovLocalizer.predict as written before the fused kernel (issue 8, third pass)."""
+    """MarkovLocalizer.predict as written before the fused kernel (a composition of kernels)."""
     p = loc._shift(loc._p, dx, dy, dtheta)
     prm = loc.params
     s_xy = (prm.trans_noise * math.hypot(dx, dy) + prm.trans_noise_min) / loc.cell
@@ -304,7 +304,7 @@ def _predict_reference(loc, dx, dy, dtheta):
 
 
 def _update_reference(loc, z):
-    """MarkovLocalizer.update as written before the fused kernels (issue 8, third pass)."""
+    """MarkovLocalizer.update as written before the fused kernels (a composition of kernels)."""
     seen = np.isfinite(z)
     if not seen.any():
         return loc._p
