@@ -297,6 +297,21 @@ def test_camera_range():
     assert obs.dest_bearing == pytest.approx(0.0)
 
 
+def test_the_destination_has_a_range_of_its_own():
+    """``destination_range`` hides the destination beyond it and leaves the landmarks to
+    ``camera_range``; 0 (the default) is ``camera_range`` for every blob."""
+    p = load_sim_params(overrides={'sensors.destination_range': 0.9,
+                                   'sensors.bearing_noise_deg': 0.0})
+    obs = make_sim(p).reset('A')           # destination 1.0 m away, landmarks up to 3.0 m
+    assert math.isnan(obs.dest_bearing) and obs.landmarks_visible.all()
+    obs = make_sim(p).reset(start=(-0.8, 0.0, 0.0))
+    assert obs.dest_bearing == pytest.approx(0.0)
+    both = load_sim_params(overrides={'sensors.camera_range': 0.9,
+                                      'sensors.bearing_noise_deg': 0.0})
+    assert not make_sim(both).reset('A').landmarks_visible.any()
+    assert load_sim_params().sensors.destination_range == 0.0
+
+
 def test_bearings_and_wrap(exact):
     sim = make_sim(exact)
     # robot south of the destination: bearing = pi/2 - heading, wrapped

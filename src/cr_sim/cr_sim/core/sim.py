@@ -32,8 +32,8 @@ Model
   within range.
 * Omni-camera: the bearing of the destination and of each landmark relative to the heading,
   ``+ N(0, bearing_noise^2)``, wrapped to (-pi, pi]; ``nan`` when the segment robot->target
-  crosses a tall obstacle or the target is beyond ``camera_range``. Short obstacles and walls
-  hide nothing.
+  crosses a tall obstacle or the target is beyond ``camera_range`` (the destination: beyond
+  ``destination_range``, when set). Short obstacles and walls hide nothing.
 
 Randomness: the ``rng`` passed in draws the start poses and the wander steering; the sensor
 noise comes from a child generator spawned from it at construction, so whether (and how often)
@@ -93,6 +93,9 @@ class SensorParams:
     ir_range: float = param(0.01, 5.0, doc='maximum IR reading [m]')
     ir_noise_sigma: float = param(0.0, 1.0, doc='std of the Gaussian IR noise [m]')
     camera_range: float = param(0.1, 100.0, doc='targets farther than this are not seen [m]')
+    destination_range: float = param(
+        0.0, 100.0, doc='the destination marker is not seen farther than this [m] (a small '
+        'blob on the floor; the landmarks keep camera_range); 0 = camera_range')
     bearing_noise_deg: float = param(0.0, 90.0, doc='std of the bearing noise [deg]')
 
     def validate(self) -> None:
@@ -283,7 +286,10 @@ class Simulator:
         self._n_tall = len(arena.tall_obstacles)
         self._ir_range = sp.ir_range
         diag = math.hypot(arena.width, arena.height)
-        self._cam_range = sp.camera_range if sp.camera_range < diag else None
+        # the farthest each target is seen: the destination, then the landmarks
+        ranges = np.full(len(self._targets), sp.camera_range)
+        ranges[0] = sp.destination_range or sp.camera_range
+        self._cam_range = ranges if (ranges < diag).any() else None
         sig_b = math.radians(sp.bearing_noise_deg)
         self._noisy = sp.ir_noise_sigma > 0.0 or sig_b > 0.0
         self._sigmas = np.concatenate([np.full(self._n_ir, sp.ir_noise_sigma),
