@@ -15,52 +15,32 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from pathlib import Path
+import re
+import sys
 import time
 import timeit
+import types
 
 from clis_modules.core.decider import Decider, Percept
-from clis_modules.core.features import RbfGrid, uniform_centers
-from clis_modules.core.modules import (
-    PolicyParams,
-    ValueParams,
-    arena_map,
-    build_module,
-    load_module_params,
-)
-from clis_modules.core.plugin import FeatureModel, ModulePlugin
+from clis_modules.core.modules import arena_map, build_module, load_module_params
 from cr_sim.core.arena import load_arena
-from cr_sim.core.params import build, dataclass, param
+from cr_sim.core.params import build
 import numpy as np
 
-
-@dataclass(frozen=True)
-class FrontIrParams:
-    period: float = param(0.01, 60.0, doc='decision period [s]')
-    n_theta: int = param(1, 100, doc='RBF centres over the bearing')
-    value: ValueParams = param(doc='value (1)(2), learned by (8)')
-    policy: PolicyParams = param(doc='policy (10), learned by (9)')
+DOC = Path(__file__).resolve().parent.parent / 'docs' / 'modules.md'
 
 
-class FrontIr(ModulePlugin):
-    """docs/modules.md's example: the front IR rays and the destination's bearing."""
-
-    Params = FrontIrParams
-    sensors = ('camera', 'ir')
-    learned = True
-    defaults = {'period': 0.4, 'n_theta': 5, 'value': {'alpha': 0.1, 'v_init': 0.0},
-                'policy': {'alpha': 0.5, 'sigma': 0.1, 'learn_sigma': False,
-                           'sigma_min': 0.02, 'sigma_max': 0.5, 'alpha_sigma': 0.0}}
-
-    def model(self, prm, ctx):
-        grid = RbfGrid([uniform_centers(-math.pi, math.pi, prm.n_theta, True)],
-                       [(2 * math.pi / prm.n_theta) ** 2], [True], normalize=True)
-
-        def features(p):
-            front = 1.0 if p.ir is None else float(np.min(p.ir[2:5])) / 0.5
-            return np.concatenate([grid.at(p.dest_bearing), [front]])
-        return FeatureModel(grid.n + 1, features)
+def documented_plugin() -> tuple[type, type]:
+    """``(FrontIr, FrontIrParams)``: the code block ``# clis_frontir.py`` of docs/modules.md,
+    run as it is written there."""
+    for block in re.findall(r'```\w*\n(.*?)```', DOC.read_text(encoding='utf-8'), re.S):
+        if block.startswith('# clis_frontir.py'):
+            module = types.ModuleType('clis_frontir')
+            sys.modules[module.__name__] = module           # for its dataclasses
+            exec(compile(block, str(DOC), 'exec'), module.__dict__)      # noqa: S102
+            return module.FrontIr, module.FrontIrParams
+    raise SystemExit(f'{DOC} has no code block # clis_frontir.py')
 
 
 class _Zeros:
@@ -79,6 +59,7 @@ def main() -> int:
     args = ap.parse_args()
     landmarks, floor, boxes = arena_map(load_arena())
     params = load_module_params()
+    FrontIr, FrontIrParams = documented_plugin()       # noqa: N806
     plugin = FrontIr()
     plugin.name = 'frontir'
     external = build_module('frontir', plugin, build(FrontIrParams, dict(plugin.defaults)),
