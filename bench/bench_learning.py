@@ -78,9 +78,9 @@ def bench_episodes(condition: str, episodes: int) -> tuple[float, float]:
     return 1e3 * total / episodes, 1e3 * learn_s / episodes
 
 
-def breakdown(episodes: int = 10) -> dict[str, float]:
-    """Share of an Async episode's time in each part (cProfile, cumulative)."""
-    sim, agent, arena, start_rng = setup('async')
+def breakdown(episodes: int = 10, condition: str = 'async') -> dict[str, float]:
+    """Share of an episode's time in each part (cProfile, cumulative)."""
+    sim, agent, arena, start_rng = setup(condition)
     run_episode(sim, agent, 'A', None)      # warm-up
     prof = cProfile.Profile()
     prof.enable()
@@ -90,11 +90,14 @@ def breakdown(episodes: int = 10) -> dict[str, float]:
     prof.disable()
     stats = pstats.Stats(prof).stats
     total = max(v[3] for v in stats.values())
-    parts = {'simulator step (physics, collisions)': ('sim.py', 'step'),
-             'simulator sensors (IR, camera)': ('sim.py', 'observe'),
-             'localization predict': ('localization.py', 'predict'),
-             'localization update': ('localization.py', 'update'),
-             'module features (RBF)': ('modules.py', 'features'),
+    parts = {'simulator step (physics, collisions)': ('sim.py', '_advance'),
+             'simulator sensors (IR, camera)': ('sim.py', '_sensors'),
+             'decisions (features, policy, value; with localization)': ('decider.py', 'decide'),
+             "the place belief at the other modules' instants (for (6))": ('place.py', 'peek'),
+             'localization motion update (compiled kernel)': ('localization_fused.py',
+                                                              '_predict_kernel'),
+             'localization sensor update (compiled kernel)': ('localization_fused.py',
+                                                              '_update_kernel'),
              'learner (resampling, (7)-(9))': ('learner.py', 'learn'),
              'wander between episodes': ('sim.py', '_run_wander')}
     out = {}
@@ -133,8 +136,19 @@ def main() -> int:
         print(f'  {100 * share:5.1f}%  {label}')
     rows.append({'measure': 'Async episode time: ' + ', '.join(
         f'{label} {100 * s:.0f}%' for label, s in shares.items()), 'value': '', 'goal': ''})
+    # the compiled localization kernels against the rest, per condition with a place module:
+    # what a runner with no other cost would gain at most (same results to the bit)
+    kernels = {}
+    for condition in ('place', 'sync', 'async'):
+        part = breakdown(condition=condition)
+        kernels[condition] = sum(v for k, v in part.items() if 'compiled kernel' in k)
+    ms = {c: v['ms_per_episode'] for c, v in per.items()}
+    floor_ms = sum(ms[c] * kernels.get(c, 0.0) for c in ms)
+    print('localization kernels: ' + ', '.join(f'{c} {100 * k:.0f}%' for c, k in kernels.items())
+          + f'; the five conditions with only the kernels left: {sum(ms.values()) / floor_ms:.1f}x'
+          ' faster at most')
     if args.json:
-        Path(args.json).write_text(json.dumps({
+        Path(args.json).write_text(json.dumps({'kernel_share': kernels,
             'localization_ms': loc_ms, 'episodes': per, 'async_breakdown': shares,
             'reproduction_upper_bound_min': total_s / 60, 'rows': rows}, indent=2))
     return 0
