@@ -1,4 +1,4 @@
-"""Test-session setup: DDS on loopback only, and a ROS_DOMAIN_ID of this session's own.
+"""Setup of a test run: DDS on loopback only, and a ROS_DOMAIN_ID that no other run holds.
 
 Applied at import time so that every process a test starts inherits it (graph tests use real
 rclpy and Fast DDS in separate OS processes).
