@@ -63,7 +63,7 @@ def test_ctrl_c_during_an_experiment_stops_its_processes_with_one_line(tmp_path)
                                  'PYTHONPATH': os.pathsep.join(p for p in sys.path if p)})
     try:
         deadline = time.monotonic() + 120
-        while len(_group(proc.pid)) < 3 and proc.poll() is None:   # main, manager, worker
+        while len(_group(proc.pid)) < 2 and proc.poll() is None:   # main and its run
             assert time.monotonic() < deadline, 'clis experiment did not start its worker'
             time.sleep(0.1)
         time.sleep(0.5)
@@ -77,7 +77,7 @@ def test_ctrl_c_during_an_experiment_stops_its_processes_with_one_line(tmp_path)
     deadline = time.monotonic() + 60                 # a bound, not a window: exits are slow
     while _group(proc.pid) and time.monotonic() < deadline:    # on a loaded host
         time.sleep(0.1)
-    assert not _group(proc.pid), 'a worker or the manager was left behind'
+    assert not _group(proc.pid), 'a run process was left behind'
 
 
 def _default_sigint() -> None:
@@ -162,6 +162,10 @@ def test_interrupted_experiment_resumes_to_the_same_results(tmp_path, monkeypatc
             outside += code == -130
             if out.exists():
                 _complete_files(out)
+            if code == 0:
+                # it finished before the signal: start again, so that the next tries have a
+                # whole command's work to interrupt, not a resume with nothing left to do
+                shutil.rmtree(out)
         # clis stopped itself (130) but for a Ctrl-C in its first milliseconds (parsing)
         assert outside <= 2, f'{outside} of {interrupts} interrupts escaped clis: {codes}'
         assert clis([*TINY, '--out', str(out), '--resume']) == 0
@@ -171,12 +175,10 @@ def test_interrupted_experiment_resumes_to_the_same_results(tmp_path, monkeypatc
         assert (out / name).read_bytes() == (ref / name).read_bytes(), name
 
 
-def test_a_pool_worker_dies_on_the_pools_sigterm_whatever_the_parent_handles():
-    """The pool's termination SIGTERMs its workers. A worker forked from a process whose
-    SIGTERM handler only remembers the signal (``clis run``'s, once run in the same process,
-    or rclpy's) kept waiting on the pool's queue, whose lock the termination holds, and the
-    pool's join waited for it forever (a fresh-clone suite hung in test_runner's experiment).
-    The pool's initializer gives SIGTERM back its default action."""
+def test_a_run_process_dies_on_sigterm_whatever_the_parent_handles():
+    """A run's process forked from a process whose SIGTERM handler only remembers the signal
+    (``clis run``'s, once run in the same process, or rclpy's) would outlive a SIGTERM;
+    ``_worker_signals`` gives SIGTERM back its default action."""
     import multiprocessing as mp
 
     from clis_app.experiment import _worker_signals
@@ -205,35 +207,58 @@ def _initialised_then_waits(initializer) -> None:
         time.sleep(0.1)
 
 
-def _sigterm_ignored() -> None:
+def _spec(tmp_path: Path, index: int = 0):
+    from clis_app.core.runner import JobSpec
+    return JobSpec(index=index, label='view', condition='view', overrides={},
+                   sim_overrides={}, seed=index, episodes=1, eval_episodes=1, arena=None,
+                   run_dir=str(tmp_path))
+
+
+def _runs_alive() -> list:
+    import multiprocessing as mp
+    return [c for c in mp.active_children() if c.name.startswith('clis-run-')]
+
+
+class _StopAtFirstProgress:
+    def update(self, *args) -> None:
+        raise KeyboardInterrupt
+
+    finish = update
+
+
+def _ignores_sigterm_and_reports(spec, q) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-
-
-def _forever() -> None:
+    q.put(('progress', spec.index, 0, 'started'))
     while True:
         time.sleep(0.1)
 
 
-def test_the_pools_termination_ends_with_a_worker_that_survived_its_sigterm():
-    """A worker that took the termination's SIGTERM before its initializer (one the pool
-    forked while it was being terminated, with the forking process's handler) survives it:
-    the termination kills it after its grace and returns (``pool.terminate()`` alone waits
-    for it forever)."""
-    import multiprocessing as mp
-    import threading
+def _raises(spec, q) -> None:
+    raise ValueError('a run that fails: boom')
 
-    from clis_app.experiment import _terminate
 
-    pool = mp.get_context('fork').Pool(processes=1, initializer=_sigterm_ignored)
-    pool.apply_async(_forever)
-    time.sleep(0.5)                        # the task taken: the worker runs it
-    ended = threading.Event()
-    stopper = threading.Thread(target=lambda: (_terminate(pool, grace=0.2), ended.set()),
-                               daemon=True)
-    stopper.start()
-    try:
-        assert ended.wait(60), 'the termination waits for a worker that survived SIGTERM'
-    finally:
-        for child in mp.active_children():
-            if 'PoolWorker' in child.name:
-                child.kill()
+def _dies(spec, q) -> None:
+    os._exit(3)
+
+
+def test_an_interrupt_kills_every_run_even_one_that_ignores_sigterm(tmp_path, monkeypatch):
+    from clis_app import experiment
+    monkeypatch.setattr(experiment, '_worker', _ignores_sigterm_and_reports)
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        experiment._run_all([_spec(tmp_path, k) for k in range(3)], 2, True,
+                            _StopAtFirstProgress())
+    assert _runs_alive() == []
+    assert time.monotonic() - t0 < 60                  # a hang guard, not a timing
+
+
+@pytest.mark.parametrize('worker, message', [(_raises, 'ValueError: a run that fails: boom'),
+                                             (_dies, 'exit code 3')])
+def test_a_failed_run_stops_the_others_and_says_why(tmp_path, monkeypatch, worker, message):
+    from clis_app import experiment
+    monkeypatch.setattr(experiment, '_worker', worker)
+    with pytest.raises(experiment.RunError, match='view seed 0') as err:
+        experiment._run_all([_spec(tmp_path, k) for k in range(3)], 1, True,
+                            experiment.Progress(total_episodes=3, runs=3, quiet=True))
+    assert message in str(err.value)
+    assert _runs_alive() == []

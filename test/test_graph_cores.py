@@ -89,7 +89,8 @@ def selector(mode: str = 'episode', beta: float = 1.0, seed: int = 0) -> Selecto
     return Selector(['innate', 'view', 'place'], [0.9, 0.8, 0.7], [0.6, 0.3, 0.125],
                     [0.25, 0.5, 1.2],
                     ArbiterParams(selection=mode, stale_periods=1.5, start_timeout=0.5,
-                                  rule='paper', scale_min=0.1, explore=0.0), beta,
+                                  rule='paper', scale_min=0.1, explore=0.0, bonus=0.0),
+                    beta,
                     np.random.default_rng(seed))
 
 
@@ -224,7 +225,7 @@ def test_selector_episode_mode_keeps_the_commands_of_the_full_freshness_check():
     a, b = selector(beta=2.0, seed=1), FullCheck(
         ['innate', 'view', 'place'], [0.9, 0.8, 0.7], [0.6, 0.3, 0.125], [0.25, 0.5, 1.2],
         ArbiterParams(selection='episode', stale_periods=1.5, start_timeout=0.5, rule='paper',
-                      scale_min=0.1, explore=0.0), 2.0, np.random.default_rng(1))
+                      scale_min=0.1, explore=0.0, bonus=0.0), 2.0, np.random.default_rng(1))
     b._full = True
     n_commands = 0
     for episode in range(30):

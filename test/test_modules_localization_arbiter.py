@@ -182,7 +182,7 @@ def test_selection_limits_and_availability():
 
 def arbiter_params(selection: str) -> ArbiterParams:
     return ArbiterParams(selection=selection, stale_periods=1.5, start_timeout=0.5,
-                         rule='paper', scale_min=0.1, explore=0.0)
+                         rule='paper', scale_min=0.1, explore=0.0, bonus=0.0)
 
 
 def test_arbiter_frequencies_and_modes():

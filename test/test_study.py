@@ -51,6 +51,21 @@ BAD = [
     ({'sim_set': {'episode.time_limt': 1.0}}, 'sim_set', 'time_limt'),
     ({'sim_set': {'robot.radius': 0.4}}, 'arenas: mine.yaml', 'robot radius 0.4 m'),
     ({'grids': [{'seeds': 2}, {'protocols': ['nope']}]}, 'grids[1].protocols[0]', 'wander'),
+    # a preset compared with another's single modules: it runs none, the other has them
+    ({'presets': [{'name': 'b', 'preset': 'improved', 'singles': 'improved'}]},
+     "conditions: 'innate'", 'more than one module'),
+    ({'conditions': ['async'], 'presets': [{'name': 'b', 'preset': 'improved',
+                                            'singles': 'improved'}]},
+     'presets (b).singles: improved has no single-module run', 'add them'),
+    ({'grids': [{'presets': ['improved'], 'seeds': 2},
+                {'conditions': ['async'], 'presets': [{'name': 'b', 'preset': 'improved',
+                                                       'singles': 'improved'}]}]},
+     'presets (b).singles: improved has no single-module run on mine/wander seed 2',
+     'add them'),
+    ({'grids': [{'presets': ['improved']},
+                {'conditions': ['async'], 'episodes': 4, 'eval_every': 2,
+                 'presets': [{'name': 'b', 'preset': 'improved', 'singles': 'improved'}]}]},
+     'presets (b).singles: the runs of improved', 'another episodes'),
 ]
 
 
@@ -210,6 +225,30 @@ def test_the_report_counts_layouts_above_and_below_with_their_intervals():
     assert bad_rows(md) == []
     assert '| improved | wander | 3 | 1 above, 1 below, 1 not resolved; over 3 layouts -7.2' in md
     assert '+19.5 ±' in md and '(view) **above**' in md
+
+
+def test_a_preset_with_singles_is_compared_with_the_other_presets_single_modules():
+    rows = []
+    for seed in range(4):
+        rows.append(_summary('up', 'innate', seed, 20 + seed % 2))
+        rows.append(_summary('up', 'view', seed, 30 + seed % 2))
+        rows.append(_summary('up', 'async', seed, 25 + seed % 2))
+        bonus = _summary('up', 'async', seed, 40 + seed % 2 - (seed == 3))
+        bonus.update(preset='improved+bonus', settings={'layout_seed': 1,
+                                                        'singles': 'improved'})
+        rows.append(bonus)
+    rep = study_report.report(rows)
+    groups = {g['preset']: g for g in rep['numbers']['groups']}
+    assert groups['improved']['layouts']['up']['async_best']['verdict'] == 'below'
+    b = groups['improved+bonus']
+    assert b['singles_from'] == 'improved' and b['conditions'] == ['innate', 'view', 'async']
+    cell = b['layouts']['up']
+    assert cell['async_best']['verdict'] == 'above' and cell['async_best']['best'] == 'view'
+    assert cell['conditions']['view'] == groups['improved']['layouts']['up']['conditions'][
+        'view']
+    assert 'view_innate' not in cell                   # the other preset's, drawn once
+    assert 'The single modules are the runs of preset improved' in rep['markdown']
+    assert bad_rows(rep['markdown']) == []
 
 
 def test_arena_generate_writes_the_same_bytes_and_show_checks_and_draws(tmp_path, capsys):

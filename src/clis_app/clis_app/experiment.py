@@ -23,13 +23,11 @@ import csv
 from dataclasses import dataclass
 import json
 import multiprocessing as mp
-from multiprocessing.managers import SyncManager
 import os
 from pathlib import Path
 import queue
 import signal
 import sys
-import threading
 import time
 from typing import Any
 
@@ -447,83 +445,107 @@ def figures_only(out: Path) -> int:
     return _finish(out, [JobResult.load(p) for p in paths], None)
 
 
+class RunError(RuntimeError):
+    """A run's process raised (the message holds its traceback) or died without finishing."""
+
+
 def _run_all(todo: list[JobSpec], workers: int, quiet: bool,
              progress: Progress | None = None) -> None:
-    """Run ``todo`` on a pool of ``workers`` processes, each run saved as it finishes;
-    ``progress`` (default: a :class:`Progress` line) gets each run's progress and its end,
-    after its result file is written."""
+    """Run ``todo`` in up to ``workers`` processes at once, one process per run, each run saved
+    as it finishes; ``progress`` (default: a :class:`Progress` line) gets each run's progress
+    and its end, after its result file is written.
+
+    On an exception here (a Ctrl-C, a run that failed) every run process still alive is
+    killed before it propagates: its run is lost, never half-written (results are written
+    atomically). A process per run, not a ``multiprocessing.Pool``: a pool's termination
+    acquires its task queue's lock, which an idle worker holds while it waits for a task, so
+    a worker killed at that moment (one that survived SIGTERM, say) left the termination
+    waiting forever. Here nothing the parent waits on is shared with a process it kills."""
     if progress is None:
         progress = Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
                             quiet=quiet)
     ctx = mp.get_context('fork' if sys.platform.startswith('linux') else 'spawn')
     if ctx.get_start_method() == 'fork':
-        warm_up(todo[0])          # compiled kernels loaded once, inherited by every worker
-    # a Ctrl-C while the manager and the pool are being made would leave a worker behind
-    # (the pool's with block, which terminates it, not entered yet): held until both exist
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        warm_up(todo[0])          # compiled kernels loaded once, inherited by every run
+    q = ctx.Queue()               # (kind, index, episodes, note) from the runs
+    remap = {s.index: k for k, s in enumerate(todo)}
+    waiting = list(todo)
+    running: dict[int, Any] = {}
+    finished: set[int] = set()
+
+    def handle(kind: str, index: int, episodes: int, note: str) -> None:
+        if kind == 'error':
+            spec = todo[remap[index]]
+            raise RunError(f'{spec.label} seed {spec.seed} failed:\n{note}')
+        if kind == 'done':
+            finished.add(index)
+            progress.finish(remap[index], episodes, note)
+        else:
+            progress.update(remap[index], episodes, note)
+
     try:
-        manager = SyncManager(ctx=ctx)
-        manager.start(_worker_signals)     # Ctrl-C is the main process's to handle (cli.main)
-        q = manager.Queue()
-        pool = ctx.Pool(processes=min(workers, len(todo)), maxtasksperchild=1,
-                        initializer=_worker_signals)
-    except BaseException:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-        raise
-    try:
-        try:
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})   # delivered here
-            pending = [pool.apply_async(_worker, (spec, q)) for spec in todo]
-            remap = {s.index: k for k, s in enumerate(todo)}
-            while any(not p.ready() for p in pending) or not q.empty():
+        while waiting or running:
+            while waiting and len(running) < workers:
+                spec = waiting.pop(0)
+                proc = ctx.Process(target=_run_process, args=(spec, q),
+                                   name=f'clis-run-{spec.index}', daemon=True)
+                # a Ctrl-C between the start and the bookkeeping would leave it unkilled
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
                 try:
-                    kind, index, episodes, note = q.get(timeout=0.5)
-                except queue.Empty:
-                    for p in pending:
-                        if p.ready() and not p.successful():
-                            p.get()  # re-raise the worker's exception
+                    proc.start()
+                    running[spec.index] = proc
+                finally:
+                    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+            try:
+                handle(*q.get(timeout=0.5))
+            except queue.Empty:
+                pass
+            for index, proc in list(running.items()):
+                if proc.exitcode is None:
                     continue
-                if kind == 'done':
-                    progress.finish(remap[index], episodes, note)
-                else:
-                    progress.update(remap[index], episodes, note)
-            for p in pending:
-                p.get()
-        finally:
-            _terminate(pool)
+                proc.join()
+                del running[index]
+                while index not in finished:           # its last messages, already sent
+                    try:
+                        handle(*q.get(timeout=1.0 if proc.exitcode == 0 else 0.1))
+                    except queue.Empty:
+                        spec = todo[remap[index]]
+                        raise RunError(f'{spec.label} seed {spec.seed}: its process ended '
+                                       f'(exit code {proc.exitcode}) without its result; '
+                                       'rerun with --resume') from None
     finally:
-        manager.shutdown()
+        _kill(running.values())
 
 
-def _terminate(pool: mp.pool.Pool, grace: float = 1.0) -> None:
-    """``pool.terminate()``, killing every pool worker still alive each ``grace`` seconds
-    until it returns. A worker that the pool forks while it is being terminated (one per
-    finished run: ``maxtasksperchild=1``) may take the termination's SIGTERM before its
-    initializer restores the default (in a handler inherited from the forking process), and
-    would then wait on the pool's queue, and the pool's join wait for it."""
-    done = threading.Event()
-
-    def reap() -> None:
-        while not done.wait(grace):
-            for child in mp.active_children():
-                if 'PoolWorker' in child.name:
-                    child.kill()
-    reaper = threading.Thread(target=reap, name='pool-reaper', daemon=True)
-    reaper.start()
+def _run_process(spec: JobSpec, q: Any) -> None:
+    """A run's process: Ctrl-C is the parent's to handle; an exception goes to the parent."""
+    _worker_signals()
     try:
-        pool.terminate()
-    finally:
-        done.set()
-        reaper.join()
+        _worker(spec, q)
+    except BaseException:
+        import traceback
+        q.put(('error', spec.index, 0, traceback.format_exc()))
+        q.close()
+        q.join_thread()
+        raise SystemExit(1) from None
+
+
+def _kill(processes: Any) -> None:
+    """SIGKILL every process of ``processes`` still alive and reap it (no handler of theirs
+    can delay it)."""
+    processes = list(processes)
+    for proc in processes:
+        if proc.exitcode is None:
+            proc.kill()
+    for proc in processes:
+        proc.join()
 
 
 def _worker_signals() -> None:
-    """In the worker and manager processes: Ctrl-C (SIGINT to the whole process group) is
-    left to the main process, which stops them (the pool is terminated when its ``with``
-    block exits) and prints one line instead of a traceback per process. SIGTERM, which
-    that termination sends, kills them whatever handler the forking process had installed
-    (a handler that only remembers it, as ``clis run``'s in the same process before, or
-    rclpy's, left a worker waiting on the pool's queue and the pool's join waiting for it)."""
+    """In a run's process: Ctrl-C (SIGINT to the whole process group) is left to the main
+    process, which stops the runs and prints one line instead of a traceback per process;
+    SIGTERM gets its default action back, whatever handler the forking process had installed
+    (``clis run``'s, once run in the same process, or rclpy's, which only remember it)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 

@@ -101,8 +101,10 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     ``clis_overrides``: the CLIS keys of the run's ``--params`` files (dotted), which the nodes
     read too (the periods the simulator holds at, the arbiter's selection)."""
     from clis_learner.core.config import load_clis_params
+    from clis_modules.core.arbiter import refuse_bonus
     from clis_modules.core.modules import condition_periods, condition_sensors
     clis = load_clis_params(overrides=clis_overrides or None, source='--params')
+    refuse_bonus(clis.arbiter.bonus)
     periods = condition_periods(clis, condition)
     modules = [name for name, _ in periods]
     sensors = condition_sensors(clis, condition)

@@ -13,7 +13,10 @@ SPEC is a YAML file (docs/study.md; config/study.yaml, config/study_smoke.yaml):
     eval_episodes: 10                        # per start A-E at each evaluation point
 
 or ``grids: [{...}, {...}]``, each a grid of those keys (the top level gives their defaults):
-the union of the grids is run. A generated arena (``{generated: {seeds: [...]}}`` or
+the union of the grids is run. A preset with ``singles: OTHER`` (for an option that changes
+only how modules are chosen, such as ``arbiter.bonus``) runs no single-module condition: its
+report compares it with the single-module runs of preset OTHER on the same arena, protocol
+and seed, which the SPEC must have. A generated arena (``{generated: {seeds: [...]}}`` or
 ``{generated: {first: 0, count: 16}}``) is the layout ``clis arena generate --seed K`` writes.
 
 Every value is checked before anything runs or is written: a bad one is one line naming its
@@ -148,6 +151,7 @@ class _Preset:
     name: str
     base: str
     sets: dict
+    singles: str | None = None
 
 
 def _arenas(items: Any, where: str, spec_dir: Path, out: Path, radius: float,
@@ -217,7 +221,7 @@ def _file_arena(name: str, where: str, spec_dir: Path, out: Path, radius: float,
 
 def _presets(items: Any, where: str, names: tuple[str, ...]) -> list[_Preset]:
     allowed = (f'a preset ({", ".join(names)}) or {{name: NAME, preset: PRESET, set: '
-               '{KEY: VALUE, ...}}')
+               '{KEY: VALUE, ...}, singles: OTHER}} (set and singles optional)')
     out = []
     for i, item in enumerate(_list(items, where, allowed)):
         w = f'{where}[{i}]'
@@ -227,7 +231,7 @@ def _presets(items: Any, where: str, names: tuple[str, ...]) -> list[_Preset]:
             out.append(_Preset(item, item, {}))
             continue
         if not isinstance(item, Mapping) or not {'name', 'preset'} <= set(item) \
-                or not set(item) <= {'name', 'preset', 'set'}:
+                or not set(item) <= {'name', 'preset', 'set', 'singles'}:
             raise _allowed(w, item, allowed)
         if item['preset'] not in names:
             raise _allowed(f'{w}.preset', item['preset'], ', '.join(names))
@@ -237,7 +241,10 @@ def _presets(items: Any, where: str, names: tuple[str, ...]) -> list[_Preset]:
         sets = item.get('set') or {}
         if not isinstance(sets, Mapping):
             raise _allowed(f'{w}.set', sets, 'a mapping KEY: VALUE of config/clis.yaml')
-        out.append(_Preset(item['name'], item['preset'], dict(sets)))
+        singles = item.get('singles')
+        if singles is not None and (not isinstance(singles, str) or singles == item['name']):
+            raise _allowed(f'{w}.singles', singles, "another preset's name in this SPEC")
+        out.append(_Preset(item['name'], item['preset'], dict(sets), singles))
     return out
 
 
@@ -303,6 +310,12 @@ def _grid_runs(grid: Mapping[str, Any], where: str, spec_dir: Path, out: Path,
                                 'eval_episodes': eval_episodes, 'preset': p.base,
                                 'set': p.sets, 'sim_set': dict(g['sim_set']),
                                 'arena_sha256': sha, 'layout_seed': a.seed}
+                    if p.singles is not None:
+                        if _is_single(cond):
+                            raise _allowed(f'{where}conditions', cond, 'conditions of more '
+                                           f'than one module with preset {p.name} (its '
+                                           f'single modules are those of {p.singles})')
+                        settings['singles'] = p.singles
                     enc = tuple(sorted((k, json.dumps(v, sort_keys=True))
                                        for k, v in settings.items()))
                     runs += [Run(a.key, proto, p.name, cond, s, enc) for s in seeds]
@@ -342,6 +355,7 @@ def plan(spec: Any, spec_dir: Path, out: Path) -> tuple[list[Run], dict[str, _Ar
                                cache, names)
     else:
         runs = _grid_runs(defaults, '', spec_dir, out, radius, cache, names)
+    _check_singles(runs)
     unique: dict[tuple, Run] = {}
     for r in runs:
         old = unique.setdefault(r.key, r)
@@ -356,6 +370,32 @@ def plan(spec: Any, spec_dir: Path, out: Path) -> tuple[list[Run], dict[str, _Ar
             raise SpecError(f'{r.label} and {other.label} would share a summary file: '
                             'rename one')
     return list(unique.values()), cache
+
+
+def _is_single(condition: str) -> bool:
+    from clis_modules.core.plugin import parse_condition
+    return len(parse_condition(condition).modules) == 1
+
+
+def _check_singles(runs: list[Run]) -> None:
+    """Each run of a preset with ``singles: OTHER`` has single-module runs of OTHER on its
+    arena, protocol and seed, made with the same episodes, evaluation and simulator."""
+    same = ('episodes', 'eval_every', 'eval_episodes', 'sim_set', 'arena_sha256')
+    singles = {(r.preset, r.arena, r.protocol, r.seed): r for r in runs
+               if _is_single(r.condition)}
+    for r in runs:
+        other = dict(r.settings).get('singles')
+        if other is None:
+            continue
+        q = singles.get((json.loads(other), r.arena, r.protocol, r.seed))
+        if q is None:
+            raise SpecError(f'presets ({r.preset}).singles: {json.loads(other)} has no '
+                            f'single-module run on {r.arena}/{r.protocol} seed {r.seed}: add '
+                            'them to the SPEC')
+        diff = [k for k in same if r.setting(k) != q.setting(k)]
+        if diff:
+            raise SpecError(f'presets ({r.preset}).singles: the runs of {q.preset} on '
+                            f'{r.arena}/{r.protocol} have another {diff[0]}')
 
 
 def _check_settings(runs: list[Run], arenas: dict[str, _Arena]) -> None:

@@ -171,11 +171,25 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
     groups: dict[tuple[str, str], dict[str, list[dict]]] = {}
     for d in summaries:
         groups.setdefault((d['preset'], d['protocol']), {}).setdefault(d['arena'], []).append(d)
+    # a preset with `singles: OTHER` is compared with OTHER's single-module runs
+    borrowed = {key: next((d['settings']['singles'] for rows in arenas.values() for d in rows
+                           if d['settings'].get('singles')), None)
+                for key, arenas in groups.items()}
+    for (preset, proto), other in borrowed.items():
+        if other is None:
+            continue
+        for arena, rows in groups[(preset, proto)].items():
+            seeds = {d['seed'] for d in rows}
+            rows += [d for d in groups.get((other, proto), {}).get(arena, [])
+                     if _is_single(d['condition']) and d['seed'] in seeds]
     numbers: dict[str, Any] = {'name': name, 'runs': len(summaries), 'planned': planned,
                                'groups': []}
     for (preset, proto) in sorted(groups, key=lambda k: (k[0], PROTOCOLS.index(k[1])
                                                          if k[1] in PROTOCOLS else 9, k[1])):
         cells = {a: _cell(rows) for a, rows in sorted(groups[(preset, proto)].items())}
+        if borrowed[(preset, proto)] is not None:
+            for c in cells.values():          # the other preset's, not this one's
+                c.pop('view_innate', None)
         agg: dict[str, Any] = {}
         for key in ('async_best', 'thesis_view', 'thesis_place', 'view_innate'):
             per = [c[key]['mean'] for c in cells.values() if key in c]
@@ -193,7 +207,8 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
                            if c in cell['conditions']])
             agg.setdefault('conditions', {})[c] = {'mean': m, 'half': h, 'layouts': n}
         numbers['groups'].append({'preset': preset, 'protocol': proto, 'conditions': conds,
-                                  'layouts': cells, 'aggregate': agg})
+                                  'layouts': cells, 'aggregate': agg,
+                                  'singles_from': borrowed[(preset, proto)]})
     return {'markdown': _markdown(numbers), 'numbers': _finite(numbers)}
 
 
@@ -267,8 +282,12 @@ def _markdown(numbers: dict) -> str:
     for g in numbers['groups']:
         conds = g['conditions']
         here = [(k, t) for k, t in _DIFFS if k in g['aggregate']]
-        out += ['', f'## Preset {g["preset"]}, protocol {g["protocol"]}', '',
-                _row(['layout', 'goal hidden', 'seeds'] + conds + [t for _, t in here]),
+        out += ['', f'## Preset {g["preset"]}, protocol {g["protocol"]}', '']
+        if g.get('singles_from'):
+            out += [f'The single modules are the runs of preset {g["singles_from"]} (the '
+                    'option changes only how modules are chosen: a single-module run is the '
+                    'same run).', '']
+        out += [_row(['layout', 'goal hidden', 'seeds'] + conds + [t for _, t in here]),
                 '|---|---|---|' + '---|' * (len(conds) + len(here))]
         for name, c in g['layouts'].items():
             cells = [_pm(c['conditions'].get(k)) for k in conds]

@@ -50,7 +50,7 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from sensor_msgs.msg import JointState
 
 from clis_modules import conversions as conv
-from clis_modules.core.arbiter import Command, Selector
+from clis_modules.core.arbiter import Command, Selector, refuse_bonus
 from clis_modules.core.lockstep import TickBarrier
 from clis_modules.core.modules import (
     CommonParams,
@@ -95,6 +95,7 @@ class ArbiterNode(GraphNode):
 
     def __init__(self) -> None:
         super().__init__('arbiter', 'arbiter_node', ArbiterNodeParams)
+        refuse_bonus(self.clis.arbiter.bonus)
         common = self.clis.common
         names, gammas, v_max, taus = module_timing(
             common, condition_periods(self.clis, self.graph.condition))

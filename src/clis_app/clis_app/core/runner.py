@@ -88,6 +88,9 @@ class Agent:
         self.condition = condition
         self.modules: list[ModuleCore] = make_modules(params, condition, *arena_map(arena))
         self.names = [m.name for m in self.modules]
+        if params.arbiter.bonus > 0.0:
+            for m in self.modules:       # the exploration bonus's selection counts C_i
+                m.visits = np.zeros(m.n)
         self.gammas = np.array([m.gamma for m in self.modules])
         self.stream = AgentStream(rng, len(self.modules), params.arbiter.selection)
         self.deciders = [Decider(m, module_draws(self.stream, i), wheel_base)
@@ -134,6 +137,8 @@ def run_episode(sim: Simulator, agent: Agent, start: Any, heading: float | None,
         d.reset()
     localizing = [d for d in deciders if d.tracks_motion]
     selector.begin_episode(0.0)
+    # the exploration bonus (arbiter.bonus) in learning episodes only
+    selector.explore_now = learn and selector.kappa > 0.0
     stream.begin_episode()
     episodes.start(0.0, 0, start if isinstance(start, str) else 'pose', dt)
     u_exec = np.zeros(2)

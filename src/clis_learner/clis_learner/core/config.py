@@ -18,10 +18,10 @@ from typing import Any
 from clis_modules.core.modules import ModuleSetParams
 from cr_sim.core.params import (
     ConfigError,
-    as_dict,
     config_dir,
     dataclass,
     flatten,
+    identity_dict,
     load_params,
     load_yaml,
     param,
@@ -239,5 +239,5 @@ def check_params_file(path: str | os.PathLike) -> dict[str, Any]:
 
 def params_hash(params: Any) -> str:
     """Short SHA-256 of a parameter dataclass (canonical JSON): identifies a configuration."""
-    text = json.dumps(as_dict(params), sort_keys=True, separators=(',', ':'))
+    text = json.dumps(identity_dict(params), sort_keys=True, separators=(',', ':'))
     return hashlib.sha256(text.encode('utf-8')).hexdigest()[:16]

@@ -29,7 +29,9 @@ Barto 2012, :func:`~clis_learner.core.updates.bounded_step`); ``imitation > 0`` 
 behaviour cloning of the executed actions where their return beat V_i (CRAIL; self-imitation)
 to step 5;
 ``max_mean_step > 0`` bounds the change of the policy mean at the episode's states (a trust
-region).
+region); with ``arbiter.bonus > 0`` the selection probabilities of the mixture include the
+exploration bonus the episode was drawn with (:mod:`clis_modules.core.arbiter`), and after
+the updates the acting module's selection counts take in its start features.
 
 All densities of step 3 use the parameters the episode was played with: every ratio is computed
 before any module is updated, so the order of the modules does not matter. The result depends
@@ -70,7 +72,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
-from clis_modules.core.arbiter import selection_probs
+from clis_modules.core.arbiter import selection_probs, uncertainty
 from clis_modules.core.modules import ModuleCore
 import numpy as np
 
@@ -162,23 +164,35 @@ class Learner:
             raise RuntimeError('learn() needs an ended episode: call memory.end() first')
         t_a, u_a, _ = memory.actions()
         track = ActionTrack(t_a, u_a, self.params.resample) if len(t_a) else None
+        # a learning episode was drawn with the exploration bonus (Selector.explore_now)
+        kappa = self.arbiter.bonus if update else 0.0
         # before any update
-        replays = {m.name: self.replay(m, memory, track) for m in self.modules}
+        replays = {m.name: self.replay(m, memory, track, kappa) for m in self.modules}
         # Diverging weights (the paper preset's TD(lambda) with (7): docs/results.md) overflow
         # to inf/NaN: that is detected and reported per module ('diverged', the update is then
         # not applied), so numpy's warnings would only flood a long run's output
         with np.errstate(over='ignore', invalid='ignore'):
-            return {m.name: self._learn_module(m, replays[m.name], update)
-                    for m in self.modules}
+            out = {m.name: self._learn_module(m, replays[m.name], update)
+                   for m in self.modules}
+        if update:
+            for m in self.modules:
+                rp = replays[m.name]
+                if m.visits is not None and rp is not None and rp.on[0]:
+                    # the acting module was chosen from x_0: C_i += |b_i(x_0)| / sum |b_i(x_0)|
+                    a = np.abs(rp.B[0])
+                    if a.sum() > 0.0:
+                        m.visits = m.visits + a / a.sum()
+        return out
 
     # ------------------------------------------------------------------ step 1-3
 
     def replay(self, m: ModuleCore, memory: EpisodeMemory,
-               track: ActionTrack | None = None) -> Replay | None:
+               track: ActionTrack | None = None, kappa: float | None = None) -> Replay | None:
         """Module ``m``'s view of the episode with the current parameters (``None`` if it never
         decided before the end or nothing was executed). ``track``: the episode's executed
         actions (:class:`ActionTrack` of ``memory.actions()``, shared by the modules' replays;
-        made here by default)."""
+        made here by default); ``kappa``: the exploration bonus the episode was drawn with
+        (default ``arbiter.bonus``)."""
         t_i, B = memory.decisions(m.name)  # noqa: N806
         t_a, u_a, who_a = memory.actions()
         if B is None or len(t_a) == 0:
@@ -192,7 +206,7 @@ class Learner:
         off = ~on
         r = sum_rewards(*memory.rewards(), t_i)
         if self.params.behaviour == 'mixture':
-            pi, probs = self.mixture_terms(memory, t_i, U)
+            pi, probs = self.mixture_terms(memory, t_i, U, kappa)
             # balance heuristic: rho = pi_i / sum_j Pr(j|x) pi_j on every step (on-policy too)
             rho = self.correction.ratio(pi[:, self.modules.index(m)],
                                         mixture_density(pi, probs))
@@ -215,14 +229,15 @@ class Learner:
             rho[off] = self.correction.ratio(pi_target, pi_behaviour)
         return Replay(t_i, B, U, rho, r, on)
 
-    def mixture_terms(self, memory: EpisodeMemory, t: np.ndarray, U: np.ndarray  # noqa: N803
-                      ) -> tuple[np.ndarray, np.ndarray]:
+    def mixture_terms(self, memory: EpisodeMemory, t: np.ndarray, U: np.ndarray,  # noqa: N803
+                      kappa: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Densities of every module and the selection probabilities on a grid ``t``.
 
         Module j's density ``pi_j(x_j, u_l)`` is at its latest decision ``<= t_l``; the
         probabilities are those of the arbiter's rule (3): at the start state for
         ``arbiter.selection = episode`` (one draw per episode), at each step's latest values
-        for ``decision``.
+        for ``decision``; with ``kappa > 0`` (default ``arbiter.bonus``) including the
+        exploration bonus ``kappa u_j(x_0)`` of the start state.
 
         Returns
         -------
@@ -240,8 +255,18 @@ class Learner:
             values[:, j] = B_j[k] @ mod.w
         gammas = [mod.gamma for mod in self.modules]
         rows = values[:1] if self.arbiter.selection == 'episode' else values
+        kappa = self.arbiter.bonus if kappa is None else kappa
+        bonus = None
+        if kappa > 0.0:
+            # the bonus kappa u_j(x_0) of the episode's draw (selection = episode), from the
+            # counts the episode was played with (updated after learn())
+            bonus = kappa * np.array([
+                0.0 if mod.visits is None
+                else uncertainty(B_j[latest_index(t_j, t[:1])[0]], mod.visits)
+                for mod, (t_j, B_j) in zip(self.modules, map(memory.decisions,
+                                                           [m.name for m in self.modules]))])
         probs = np.array([selection_probs(v, gammas, self.beta, None, self.arbiter.rule,
-                                          self.arbiter.scale_min, self.arbiter.explore)
+                                          self.arbiter.scale_min, self.arbiter.explore, bonus)
                           for v in rows])
         return pi, probs[0] if self.arbiter.selection == 'episode' else probs
 

@@ -14,6 +14,19 @@ module returns more; dividing by the scale makes ``beta`` a contrast (beta = 5: 
 drops the ``(1 - gamma_i)`` weight that favours the slow modules 4.5x in Async. CRAIL (Uchibe
 2018) likewise weights its mixture by the modules' performance.
 
+Beyond the paper (``arbiter.bonus = kappa > 0``, with ``selection = episode``): an exploration
+bonus where a module's value is uncertain because the module has seldom been chosen from
+states like this one, ``Pr(i | x) ∝ exp(beta (V_i(x) / s(x) + kappa u_i(x)))`` with
+``u_i(x) = 1 / sqrt(1 + n_i(x))`` (:func:`uncertainty`), ``n_i(x)`` the number of episodes
+that module i was chosen to start from states whose features overlap ``b_i(x)`` (its
+selection counts, :attr:`~clis_modules.core.modules.ModuleCore.visits`, updated by the learner
+after each learning episode, frozen within one). The count-based bonus of UCB (Auer et al.
+2002) and of count-based exploration (Strehl & Littman 2008; Bellemare et al. 2016), here on
+the arbiter's choice: a learned module keeps acting from the starts where the innate one is
+preferred until its own value there has been measured. Learning episodes only: an evaluation
+draws without it. Headless only (``clis experiment``, ``clis study``): the node graph refuses
+it (the counts do not travel to the module nodes).
+
 When to select is an ambiguity of the paper (docs/design.md §2): ``episode`` (default) draws one
 module at the episode start from the start-state values and keeps it -- what the importance
 sampling of (4)-(6) assumes, one behaviour policy per episode; ``decision`` redraws at every
@@ -32,14 +45,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass as plain_dataclass
+import math
 
-from cr_sim.core.params import dataclass, param
+from cr_sim.core.params import ConfigError, dataclass, param
 import numpy as np
 from numpy.typing import ArrayLike
 
 from clis_modules.core.proposal import Proposal
 
-__all__ = ['ArbiterParams', 'selection_probs', 'Arbiter', 'Command', 'Selector']
+__all__ = ['ArbiterParams', 'selection_probs', 'uncertainty', 'refuse_bonus', 'Arbiter',
+           'Command', 'Selector']
 
 
 @dataclass(frozen=True)
@@ -57,11 +72,50 @@ class ArbiterParams:
     scale_min: float = param(1e-6, 1e6, doc="smallest value scale of rule 'normalized'")
     explore: float = param(0.0, 1.0, doc='epsilon of an epsilon-soft selection: Pr(i|x) = '
                            '(1 - epsilon) rule + epsilon / (available modules); 0 = (3) alone')
+    bonus: float = param(0.0, 10.0, off=0.0, doc='kappa of the exploration bonus kappa / '
+                         'sqrt(1 + n_i(x)) added to the normalised values (selection = '
+                         'episode; headless runner only); 0 = none')
+
+    def __post_init__(self) -> None:
+        if self.bonus > 0.0 and self.selection != 'episode':
+            raise ConfigError(f'arbiter.bonus = {self.bonus} needs arbiter.selection = episode '
+                             f'(got {self.selection!r}): the counts are of episode starts')
+
+
+def refuse_bonus(bonus: float) -> None:
+    """Raise for the exploration bonus in the node graph (the counts stay in the headless
+    runner's modules: the module nodes would propose without them)."""
+    if bonus > 0.0:
+        raise ConfigError(f'arbiter.bonus = {bonus}: the exploration bonus runs in the headless '
+                          'runner only (clis experiment, clis study); set arbiter.bonus: 0.0 '
+                          'for the node graph')
+
+
+def uncertainty(b: np.ndarray, visits: np.ndarray) -> float:
+    """``u_i(x) = 1 / sqrt(1 + n_i(x))`` of the exploration bonus (module docstring).
+
+    ``n_i(x) = |b| . C_i / sum |b|``, the selection counts ``C_i`` (the sum of ``|b_k| / sum
+    |b_k|`` over the starts ``x_k`` module i was chosen from) read at the features ``b``:
+    with one-hot features, the number of times module i was chosen from that cell; with
+    overlapping features, a count weighted by the overlap.
+
+    Parameters
+    ----------
+    b : np.ndarray, shape (n,)
+        ``b_i(x)``.
+    visits : np.ndarray, shape (n,)
+        ``C_i``.
+    """
+    a = np.abs(b)
+    mass = float(a.sum())
+    n = float(a @ visits) / mass if mass > 0.0 else 0.0
+    return 1.0 / math.sqrt(1.0 + n)
 
 
 def selection_probs(values: ArrayLike, gammas: ArrayLike, beta: float,
                     available: ArrayLike | None = None, rule: str = 'paper',
-                    scale_min: float = 0.1, explore: float = 0.0) -> np.ndarray:
+                    scale_min: float = 0.1, explore: float = 0.0,
+                    bonus: ArrayLike | None = None) -> np.ndarray:
     """Selection probabilities of eq. (3) (``rule = 'paper'``) or of values normalised by
     their scale (``'normalized'``, module docstring).
 
@@ -84,6 +138,9 @@ def selection_probs(values: ArrayLike, gammas: ArrayLike, beta: float,
         Sec. 5.4), ``(1 - epsilon) Pr(i|x) + epsilon / n`` over the ``n`` available modules:
         every module keeps acting, and learning from its own actions, where the values favour
         another (0: the rule alone, bit for bit).
+    bonus : array_like, shape (N,), optional
+        Beyond the paper: ``kappa u_i(x)`` of each module (:func:`uncertainty`), added to the
+        rule's exponent in units of ``beta``: ``beta (V_i / s + kappa u_i)`` (None: none).
 
     Returns
     -------
@@ -113,6 +170,9 @@ def selection_probs(values: ArrayLike, gammas: ArrayLike, beta: float,
         z[ok] = beta * v[ok] / max(float(np.max(np.abs(v[ok]))), scale_min)
     else:
         raise ValueError(f"unknown selection rule {rule!r}: 'paper' or 'normalized'")
+    if bonus is not None:
+        # beyond the paper: Pr(i|x) ∝ exp(beta (V_i(x) / s(x) + kappa u_i(x)))
+        z[ok] += beta * np.asarray(bonus, dtype=np.float64).reshape(-1)[ok]
     p = np.exp(z - z[ok].max())
     p /= p.sum()
     if explore > 0.0:
@@ -149,9 +209,10 @@ class Arbiter:
         self.current: int | None = None
         self.probs: np.ndarray | None = None
 
-    def _draw(self, values: ArrayLike, gammas: ArrayLike, available: ArrayLike | None) -> int:
+    def _draw(self, values: ArrayLike, gammas: ArrayLike, available: ArrayLike | None,
+              bonus: ArrayLike | None = None) -> int:
         self.probs = selection_probs(values, gammas, self.beta, available, self.rule,
-                                     self.scale_min, self.explore)
+                                     self.scale_min, self.explore, bonus)
         cdf = np.cumsum(self.probs)
         i = min(int(np.searchsorted(cdf, self.rng.random() * cdf[-1], side='right')),
                 len(cdf) - 1)
@@ -161,9 +222,11 @@ class Arbiter:
         return i
 
     def begin_episode(self, values: ArrayLike, gammas: ArrayLike,
-                      available: ArrayLike | None = None) -> int:
-        """Draw the acting module at the episode start (both modes); returns its index."""
-        return self._draw(values, gammas, available)
+                      available: ArrayLike | None = None,
+                      bonus: ArrayLike | None = None) -> int:
+        """Draw the acting module at the episode start (both modes; ``bonus``: the
+        exploration bonus of each module, or None); returns its index."""
+        return self._draw(values, gammas, available, bonus)
 
     def on_decision(self, values: ArrayLike, gammas: ArrayLike,
                     available: ArrayLike | None = None) -> int:
@@ -224,6 +287,9 @@ class Selector:
         ``Pr(i | x)`` and ``V_i`` of the last draw, shape (N,).
     start_probs, start_values : np.ndarray or None
         The same at the episode's first draw.
+    explore_now : bool
+        Whether the exploration bonus (``params.bonus``) enters this episode's first draw
+        (learning episodes; the runner sets it, an evaluation draws without it).
     """
 
     def __init__(self, names: Sequence[str], gammas: ArrayLike, v_max: ArrayLike,
@@ -237,6 +303,8 @@ class Selector:
         self.max_age = params.stale_periods * np.asarray(periods, dtype=np.float64)
         self._max_age = self.max_age.tolist()
         self.start_timeout = params.start_timeout
+        self.kappa = params.bonus
+        self.explore_now = self.kappa > 0.0
         self.arbiter = Arbiter(params, beta, rng)
         self.latest: list[Proposal | None] = [None] * len(self.names)
         self.running = False
@@ -348,7 +416,12 @@ class Selector:
             return self._stop(t)
         self.values = self._values()
         if start:
-            i = self.arbiter.begin_episode(self.values, self.gammas, ok)
+            bonus = None
+            if self.explore_now:
+                # beyond the paper: kappa u_i(x_0), each module's uncertainty at the start
+                bonus = self.kappa * np.array([p.uncertainty if p is not None else 0.0
+                                               for p in self.latest])
+            i = self.arbiter.begin_episode(self.values, self.gammas, ok, bonus)
             self.start_probs, self.start_values = self.arbiter.probs.copy(), self.values
             self.waiting = False
         else:

@@ -27,6 +27,7 @@ from cr_sim.core.kernels import odometry, odometry_step
 import numpy as np
 from numpy.typing import ArrayLike
 
+from clis_modules.core.arbiter import uncertainty
 from clis_modules.core.modules import ModuleCore
 from clis_modules.core.plugin import Percept
 from clis_modules.core.policy import ACTION_DIM
@@ -117,7 +118,8 @@ class Decider:
         value = float(m.value_fn.w @ b)
         return Proposal(m.name, float(percept.t), b,
                         np.array((m0 + sigma * n0, m1 + sigma * n1)), np.array((m0, m1)),
-                        float(sigma), value, self.version)
+                        float(sigma), value, self.version,
+                        0.0 if m.visits is None else uncertainty(b, m.visits))
 
     def observe(self, percept: Percept) -> np.ndarray:
         """Features ``b_i(x(t))`` at ``percept.t``, an instant at which the module does not

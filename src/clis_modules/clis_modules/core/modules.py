@@ -339,6 +339,10 @@ class ModuleCore:
         it overrides them (:meth:`FeatureModel.has`), else None.
     state : object
         The model's state (the place module's ``MarkovLocalizer``), for inspection.
+    visits : np.ndarray or None
+        Selection counts ``C_i`` of the exploration bonus, shape (n,)
+        (:func:`clis_modules.core.arbiter.uncertainty`; the learner adds to them after each
+        learning episode); None without the bonus (``arbiter.bonus = 0``).
     """
 
     def __init__(self, name: str, period: float, gamma: float, v_max: float, n: int,
@@ -370,6 +374,7 @@ class ModuleCore:
         self.at_pose = hook('at_pose')
         self.display = hook('display')
         self.state = None if model is None else model.state
+        self.visits: np.ndarray | None = None
 
     def __repr__(self) -> str:
         return (f'ModuleCore({self.name!r}, plugin={self.plugin!r}, period={self.period}, '

@@ -39,6 +39,9 @@ class Proposal(NamedTuple):
         ``V_i(x(t_l)) = w_i^T b`` (1)(2).
     version : int
         Version of the parameters the decision used (learned episodes; 0 = initial).
+    uncertainty : float
+        ``u_i(x(t_l))`` of the exploration bonus (:func:`clis_modules.core.arbiter.uncertainty`);
+        0 when the module keeps no selection counts (``arbiter.bonus = 0``).
     """
 
     module: str
@@ -49,3 +52,4 @@ class Proposal(NamedTuple):
     sigma: float
     value: float
     version: int = 0
+    uncertainty: float = 0.0

@@ -32,7 +32,7 @@ import yaml
 __all__ = [
     'ConfigError', 'param', 'build', 'build_fields', 'load_yaml', 'ros_parameters', 'config_dir',
     'replace',
-    'dataclass', 'as_dict', 'set_dotted', 'flatten', 'unflatten', 'load_params',
+    'dataclass', 'as_dict', 'identity_dict', 'set_dotted', 'flatten', 'unflatten', 'load_params',
 ]
 
 
@@ -41,7 +41,7 @@ class ConfigError(ValueError):
 
 
 def param(lo: float | None = None, hi: float | None = None, *, choices: tuple | None = None,
-          doc: str = '') -> Any:
+          doc: str = '', off: Any = None) -> Any:
     """Declare a parameter field: required (no code default), with its allowed range.
 
     Parameters
@@ -52,8 +52,13 @@ def param(lo: float | None = None, hi: float | None = None, *, choices: tuple | 
         Allowed values (for strings).
     doc : str
         One line shown in error messages and ``--help``.
+    off : optional
+        For an option added after runs were saved: the value at which it changes nothing.
+        :func:`identity_dict` leaves the field out at that value, so a configuration that
+        does not use the option keeps the identity (the parameter hash of saved runs and
+        checkpoints) it had before the option existed.
     """
-    return field(metadata={'lo': lo, 'hi': hi, 'choices': choices, 'doc': doc})
+    return field(metadata={'lo': lo, 'hi': hi, 'choices': choices, 'doc': doc, 'off': off})
 
 
 def _describe(meta: Mapping[str, Any]) -> str:
@@ -173,6 +178,20 @@ def as_dict(obj: Any) -> dict:
     def conv(v: Any) -> Any:
         if dataclasses.is_dataclass(v):
             return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, (tuple, list)):
+            return [conv(x) for x in v]
+        return v
+    return conv(obj)
+
+
+def identity_dict(obj: Any) -> dict:
+    """:func:`as_dict` without the fields at their declared ``off`` value (:func:`param`):
+    what identifies a configuration."""
+    def conv(v: Any) -> Any:
+        if dataclasses.is_dataclass(v):
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)
+                    if f.metadata.get('off') is None
+                    or getattr(v, f.name) != f.metadata['off']}
         if isinstance(v, (tuple, list)):
             return [conv(x) for x in v]
         return v
