@@ -247,6 +247,9 @@ def test_a_preset_with_singles_is_compared_with_the_other_presets_single_modules
     assert cell['conditions']['view'] == groups['improved']['layouts']['up']['conditions'][
         'view']
     assert 'view_innate' not in cell                   # the other preset's, drawn once
+    assert cell['async_vs_base']['mean'] == pytest.approx(2 * 15 - 0.5)    # 40 - 25 of 50
+    assert cell['async_vs_base']['verdict'] == 'above'
+    assert 'async_vs_base' not in groups['improved']['layouts']['up']
     assert 'The single modules are the runs of preset improved' in rep['markdown']
     assert bad_rows(rep['markdown']) == []
 

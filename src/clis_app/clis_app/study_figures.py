@@ -163,7 +163,8 @@ def forest_plot(panels: dict[str, list[ForestRow]], path: Path, title: str,
                                  if r.aggregate))
     ypos = {lb: len(labels) - 1 - k for k, lb in enumerate(labels)}
     n_aggregate = len({r.label for rows in panels.values() for r in rows if r.aggregate})
-    offset = {g: (k - (len(groups) - 1) / 2) * 0.22 for k, g in enumerate(groups)}
+    step = min(0.22, 0.8 / max(len(groups), 1))          # a layout's rows within its band
+    offset = {g: (k - (len(groups) - 1) / 2) * step for k, g in enumerate(groups)}
     for ax, (name, rows) in zip(axes[0], panels.items()):
         ax.axvline(0.0, color='k', lw=0.8)
         for r in rows:

@@ -126,8 +126,10 @@ def _is_single(condition: str) -> bool:
     return len(parse_condition(condition).modules) == 1
 
 
-def _cell(summaries: list[dict]) -> dict:
-    """The numbers of one layout, protocol and preset (in points, i.e. percent)."""
+def _cell(summaries: list[dict], base: list[dict] | None = None) -> dict:
+    """The numbers of one layout, protocol and preset (in points, i.e. percent); ``base``:
+    the runs of the preset it borrows its single modules from (``singles``), whose Async it
+    is compared with."""
     by: dict[str, dict[int, dict]] = {}
     for d in summaries:
         by.setdefault(d['condition'], {})[d['seed']] = d
@@ -154,6 +156,10 @@ def _cell(summaries: list[dict]) -> dict:
     if 'innate' in rates and 'view' in rates:
         m, h, n = _ci(_paired(rates['view'], rates['innate']))
         cell['view_innate'] = {'mean': m, 'half': h, 'n': n}
+    base_async = {d['seed']: 100 * _rate(d) for d in base or [] if d['condition'] == 'async'}
+    if 'async' in rates and base_async:
+        m, h, n = _ci(_paired(rates['async'], base_async))
+        cell['async_vs_base'] = {'mean': m, 'half': h, 'n': n, 'verdict': _verdict(m, h)}
     return cell
 
 
@@ -186,12 +192,16 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
                                'groups': []}
     for (preset, proto) in sorted(groups, key=lambda k: (k[0], PROTOCOLS.index(k[1])
                                                          if k[1] in PROTOCOLS else 9, k[1])):
-        cells = {a: _cell(rows) for a, rows in sorted(groups[(preset, proto)].items())}
-        if borrowed[(preset, proto)] is not None:
+        other = borrowed[(preset, proto)]
+        cells = {a: _cell(rows, None if other is None
+                          else groups.get((other, proto), {}).get(a, []))
+                 for a, rows in sorted(groups[(preset, proto)].items())}
+        if other is not None:
             for c in cells.values():          # the other preset's, not this one's
                 c.pop('view_innate', None)
         agg: dict[str, Any] = {}
-        for key in ('async_best', 'thesis_view', 'thesis_place', 'view_innate'):
+        for key in ('async_best', 'thesis_view', 'thesis_place', 'view_innate',
+                    'async_vs_base'):
             per = [c[key]['mean'] for c in cells.values() if key in c]
             if per:
                 m, h, n = _ci(per)
@@ -245,7 +255,8 @@ def _counts(a: Mapping[str, Any] | None) -> str:
 
 #: The differences of the report: key, column title.
 _DIFFS = (('async_best', 'Async - best single'), ('thesis_view', 'M_vi in Async, alone - View'),
-          ('thesis_place', 'M_pl in Async, alone - Place'))
+          ('thesis_place', 'M_pl in Async, alone - Place'),
+          ('async_vs_base', 'Async - Async without the option'))
 
 
 def _row(cells: list[str]) -> str:
@@ -286,7 +297,8 @@ def _markdown(numbers: dict) -> str:
         if g.get('singles_from'):
             out += [f'The single modules are the runs of preset {g["singles_from"]} (the '
                     'option changes only how modules are chosen: a single-module run is the '
-                    'same run).', '']
+                    'same run); the last column is this Async minus the Async of '
+                    f'{g["singles_from"]}, paired over seeds.', '']
         out += [_row(['layout', 'goal hidden', 'seeds'] + conds + [t for _, t in here]),
                 '|---|---|---|' + '---|' * (len(conds) + len(here))]
         for name, c in g['layouts'].items():

@@ -1,0 +1,216 @@
+"""Diagnostics of a ``clis study`` folder beyond its report (docs/cooperation.md).
+
+    python tools/study_why.py studies/layouts camera --png docs/figures/study_camera.png
+    python tools/study_why.py studies/layouts starts
+    python tools/study_why.py studies/layouts layouts
+
+``camera``: on config/arena.yaml, each condition's final evaluated success and Async - best
+single against the destination's detection range (``sensors.destination_range`` of the
+presets' ``sim_set``; a run without it sees the destination up to ``camera_range``), per
+protocol; with ``--png`` the same as a figure.
+
+``starts``: the final evaluated success from each start A-E (A-C: straight line clear; D: a
+short obstacle across it; E: the destination hidden), per protocol and condition, mean over
+the generated layouts of each layout's mean over seeds: where Async gains or loses.
+
+``layouts``: across the generated layouts, per protocol, how Async - best single goes with
+the layout's hidden share, Innate's success and View - Innate (Pearson r with its 95%
+interval by Fisher's z).
+
+Reads ``DIR/runs`` and ``DIR/report.json`` (``clis study --report-only --out DIR`` writes
+it); prints Markdown tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+import json
+import math
+from pathlib import Path
+import sys
+
+import numpy as np
+
+CONDITIONS = ('innate', 'view', 'place', 'async')
+PROTOCOLS = ('wander', 'starts', 'random')
+STARTS = 'ABCDE'
+
+
+def _summaries(out: Path) -> list[dict]:
+    plan = json.loads((out / 'plan.json').read_text())
+    keys = {tuple(k) for k in plan['runs']}
+    rows = []
+    for path in sorted((out / 'runs').rglob('*.json')):
+        d = json.loads(path.read_text())
+        if (d['arena'], d['protocol'], d['preset'], d['condition'], d['seed']) in keys:
+            rows.append(d)
+    return rows
+
+
+def _ci(values: list[float]) -> tuple[float, float]:
+    """Mean and half-width of the 95% t-interval (NaN below 3 values)."""
+    from scipy import stats
+    v = np.asarray([x for x in values if math.isfinite(x)], float)
+    if len(v) == 0:
+        return math.nan, math.nan
+    if len(v) < 3:
+        return float(v.mean()), math.nan
+    return float(v.mean()), float(stats.t.ppf(0.975, len(v) - 1) * v.std(ddof=1)
+                                  / math.sqrt(len(v)))
+
+
+def _pm(m: float, h: float, sign: bool = False) -> str:
+    if not math.isfinite(m):
+        return 'n/a'
+    s = f'{m:+.1f}' if sign else f'{m:.1f}'
+    return s + (f' ± {h:.1f}' if math.isfinite(h) else '')
+
+
+def _rate(d: dict) -> float:
+    return 100.0 * d['final']['reached'] / d['final']['n']
+
+
+def camera(out: Path, png: Path | None) -> None:
+    from cr_sim.core.sim import load_sim_params
+    default = load_sim_params().sensors.camera_range
+    cells: dict[tuple[str, float], dict[str, dict[int, float]]] = defaultdict(
+        lambda: defaultdict(dict))
+    for d in _summaries(out):
+        if d['arena'] != 'arena' or d['settings'].get('preset') != 'improved' \
+                or d['settings'].get('set'):
+            continue
+        rng = d['settings'].get('sim_set', {}).get('sensors.destination_range') or default
+        cells[(d['protocol'], float(rng))][d['condition']][d['seed']] = _rate(d)
+    ranges = sorted({r for _, r in cells})
+    print(f'Destination range on config/arena.yaml (the landmarks keep {default:g} m), '
+          'improved, final evaluated success [%], mean ± 95% CI over seeds; Async - best '
+          'single paired over seeds:\n')
+    print('| protocol | destination range [m] | seeds | ' + ' | '.join(
+        c.capitalize() for c in CONDITIONS) + ' | Async - best single |')
+    print('|---|---|---|' + '---|' * (len(CONDITIONS) + 1))
+    curves: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    for proto in PROTOCOLS:
+        for r in ranges:
+            c = cells.get((proto, r))
+            if not c:
+                continue
+            stats = {k: _ci(list(c[k].values())) for k in CONDITIONS if k in c}
+            singles = [k for k in ('innate', 'view', 'place') if k in stats]
+            diff = (math.nan, math.nan)
+            if 'async' in c and singles:
+                best = max(singles, key=lambda k: stats[k][0])
+                diff = _ci([c['async'][s] - c[best][s] for s in c['async'] if s in c[best]])
+            seeds = len(c.get('async', {}))
+            print(f'| {proto} | {r:g} | {seeds} | ' + ' | '.join(
+                _pm(*stats[k]) if k in stats else 'n/a' for k in CONDITIONS)
+                + f' | {_pm(*diff, sign=True)} |')
+            for k, (m, h) in stats.items():
+                curves[proto][k].append((r, m, h))
+    if png is not None:
+        _camera_figure(curves, png, default)
+
+
+def _camera_figure(curves: dict, png: Path, default: float) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    colours = {'innate': 'black', 'view': 'tab:purple', 'place': 'tab:green',
+               'async': 'tab:red'}
+    fig, axes = plt.subplots(1, len(curves), figsize=(4.2 * len(curves), 3.8), sharey=True,
+                             squeeze=False)
+    for ax, (proto, by) in zip(axes[0], curves.items()):
+        for k, pts in by.items():
+            x, m, h = (np.array(v, float) for v in zip(*pts))
+            ax.errorbar(x, m, yerr=np.nan_to_num(h), color=colours[k], marker='o', ms=4,
+                        capsize=3, label=k.capitalize())
+        ax.set_xscale('log')
+        ax.set_xticks([1.0, 1.5, 2.0, 5.0], ['1', '1.5', '2', '5'])
+        ax.set_title(f'protocol {proto}', fontsize=10)
+        ax.set_xlabel('destination detection range [m]', fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel('final evaluated success [%]', fontsize=9)
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle(f'config/arena.yaml, improved: the destination seen up to the range on x, '
+                 f'the landmarks up to {default:g} m (mean ± 95% CI over 5 seeds)', fontsize=9)
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110, bbox_inches='tight')
+    print(f'\nwrote {png}', file=sys.stderr)
+
+
+def starts(out: Path) -> None:
+    # (protocol, condition) -> start -> per-layout means
+    per: dict[tuple[str, str], dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    runs: dict[tuple, list[dict]] = defaultdict(list)
+    for d in _summaries(out):
+        if d['preset'] == 'improved' and d['settings'].get('layout_seed') is not None:
+            runs[(d['protocol'], d['condition'], d['arena'])].append(d)
+    for (proto, cond, _), rows in runs.items():
+        last = [r['eval_curve'][-1] for r in rows]
+        for s in STARTS:
+            per[(proto, cond)][s].append(
+                float(np.mean([100 * p[f'reached_{s}'] / (p['n'] / len(STARTS)) for p in last])))
+    print('Final evaluated success from each start [%], improved, mean over the generated '
+          'layouts (each layout: its mean over seeds) ± 95% CI over layouts:\n')
+    print('| protocol | condition | layouts | ' + ' | '.join(STARTS) + ' |')
+    print('|---|---|---|' + '---|' * len(STARTS))
+    for proto in PROTOCOLS:
+        for cond in CONDITIONS:
+            by = per.get((proto, cond))
+            if not by:
+                continue
+            print(f'| {proto} | {cond} | {len(by["A"])} | '
+                  + ' | '.join(_pm(*_ci(by[s])) for s in STARTS) + ' |')
+
+
+def _pearson(x: list[float], y: list[float]) -> str:
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if len(x) < 4 or np.ptp(x) == 0 or np.ptp(y) == 0:
+        return 'n/a'
+    r = float(np.corrcoef(x, y)[0, 1])
+    z, se = math.atanh(r), 1.0 / math.sqrt(len(x) - 3)
+    lo, hi = math.tanh(z - 1.96 * se), math.tanh(z + 1.96 * se)
+    return f'{r:+.2f} [{lo:+.2f}, {hi:+.2f}]'
+
+
+def layouts(out: Path) -> None:
+    report = json.loads((out / 'report.json').read_text())
+    print('Across the generated layouts (improved): Pearson r of Async - best single with '
+          "each layout's property [95% CI, Fisher's z]:\n")
+    print('| protocol | layouts | hidden share | Innate | View - Innate |')
+    print('|---|---|---|---|---|')
+    for g in report['groups']:
+        if g['preset'] != 'improved':
+            continue
+        cells = [c for c in g['layouts'].values() if c.get('layout_seed') is not None
+                 and c.get('async_best') and c['async_best']['mean'] is not None]
+        y = [c['async_best']['mean'] for c in cells]
+        hidden = [c['hidden_share'] for c in cells]
+        innate = [(c['conditions'].get('innate') or {}).get('mean', math.nan) for c in cells]
+        vi = [(c.get('view_innate') or {}).get('mean', math.nan) for c in cells]
+        vi = [math.nan if v is None else v for v in vi]
+        innate = [math.nan if v is None else v for v in innate]
+        print(f'| {g["protocol"]} | {len(cells)} | {_pearson(hidden, y)} | '
+              f'{_pearson(innate, y)} | {_pearson(vi, y)} |')
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('out', type=Path, metavar='DIR', help='a clis study folder')
+    p.add_argument('what', choices=('camera', 'starts', 'layouts'))
+    p.add_argument('--png', type=Path, help='camera: also draw the figure here')
+    args = p.parse_args(argv)
+    if not (args.out / 'plan.json').is_file():
+        print(f'study_why: {args.out}: not a study folder (no plan.json)', file=sys.stderr)
+        return 2
+    {'camera': lambda: camera(args.out, args.png), 'starts': lambda: starts(args.out),
+     'layouts': lambda: layouts(args.out)}[args.what]()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
