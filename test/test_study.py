@@ -204,12 +204,15 @@ def test_the_report_counts_layouts_above_and_below_with_their_intervals():
             rows.append(_summary(arena, 'view', seed, view + jitter))
             solo = {'view': {'reached': view + 5 + jitter, 'n': 50}}  # M_vi alone: +10 points
             rows.append(_summary(arena, 'async', seed, asy + jitter - (seed == 3), solo))
+    for seed in range(4):                       # a layout from a file (no layout seed)
+        for cond, level in (('innate', 10), ('view', 12), ('async', 45 + seed % 2)):
+            rows.append(_summary('designed', cond, seed, level, layout_seed=None))
     rep = study_report.report(rows, planned=len(rows))
     (g,) = rep['numbers']['groups']
     assert {a: c['async_best']['verdict'] for a, c in g['layouts'].items()} == \
-        {'up': 'above', 'down': 'below', 'flat': ''}
+        {'up': 'above', 'down': 'below', 'flat': '', 'designed': 'above'}
     assert {a: c['async_best']['best'] for a, c in g['layouts'].items()} == \
-        {'up': 'view', 'down': 'view', 'flat': 'view'}
+        {'up': 'view', 'down': 'view', 'flat': 'view', 'designed': 'view'}
     ab = g['aggregate']['async_best']
     assert (ab['above'], ab['below'], ab['unresolved'], ab['layouts']) == (1, 1, 1, 3)
     up = g['layouts']['up']['async_best']
@@ -223,7 +226,11 @@ def test_the_report_counts_layouts_above_and_below_with_their_intervals():
     assert 'thesis_place' not in g['aggregate']          # no Place condition: no test
     md = rep['markdown']
     assert bad_rows(md) == []
-    assert '| improved | wander | 3 | 1 above, 1 below, 1 not resolved; over 3 layouts -7.2' in md
+    assert '| improved | wander | 4 | 1 above, 1 below, 1 not resolved; over 3 generated ' \
+        'layouts -7.2' in md
+    # the layout designed by hand is in the table, not in the aggregate over generated ones
+    assert g['layouts']['designed']['async_best']['verdict'] == 'above'
+    assert g['aggregate']['over'] == 'generated' and g['aggregate']['n_layouts'] == 3
     assert '+19.5 ±' in md and '(view) **above**' in md
 
 

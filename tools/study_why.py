@@ -115,6 +115,7 @@ def _camera_figure(curves: dict, png: Path, default: float) -> None:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
     colours = {'innate': 'black', 'view': 'tab:purple', 'place': 'tab:green',
                'async': 'tab:red'}
     fig, axes = plt.subplots(1, len(curves), figsize=(4.2 * len(curves), 3.8), sharey=True,
@@ -126,11 +127,12 @@ def _camera_figure(curves: dict, png: Path, default: float) -> None:
                         capsize=3, label=k.capitalize())
         ax.set_xscale('log')
         ax.set_xticks([1.0, 1.5, 2.0, 5.0], ['1', '1.5', '2', '5'])
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_title(f'protocol {proto}', fontsize=10)
         ax.set_xlabel('destination detection range [m]', fontsize=9)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel('final evaluated success [%]', fontsize=9)
-    axes[0][0].legend(fontsize=8)
+    axes[0][0].legend(fontsize=8, loc='lower left')
     fig.suptitle(f'config/arena.yaml, improved: the destination seen up to the range on x, '
                  f'the landmarks up to {default:g} m (mean ± 95% CI over 5 seeds)', fontsize=9)
     fig.tight_layout()

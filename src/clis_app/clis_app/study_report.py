@@ -199,13 +199,18 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
         if other is not None:
             for c in cells.values():          # the other preset's, not this one's
                 c.pop('view_innate', None)
-        agg: dict[str, Any] = {}
+        # over the generated layouts where the group has any (nobody designed or tuned on
+        # them), else over all its layouts
+        generated = {a: c for a, c in cells.items() if c['layout_seed'] is not None}
+        pool = generated or cells
+        agg: dict[str, Any] = {'over': 'generated' if generated else 'all',
+                               'n_layouts': len(pool)}
         for key in ('async_best', 'thesis_view', 'thesis_place', 'view_innate',
                     'async_vs_base'):
-            per = [c[key]['mean'] for c in cells.values() if key in c]
+            per = [c[key]['mean'] for c in pool.values() if key in c]
             if per:
                 m, h, n = _ci(per)
-                verdicts = [c[key].get('verdict', '') for c in cells.values() if key in c]
+                verdicts = [c[key].get('verdict', '') for c in pool.values() if key in c]
                 agg[key] = {'mean': m, 'half': h, 'layouts': n, 'verdict': _verdict(m, h),
                             'above': verdicts.count('above'), 'below': verdicts.count('below'),
                             'unresolved': verdicts.count('')}
@@ -213,7 +218,7 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
         from clis_modules.core.plugin import condition_order
         conds.sort(key=condition_order)
         for c in conds:
-            m, h, n = _ci([cell['conditions'][c]['mean'] for cell in cells.values()
+            m, h, n = _ci([cell['conditions'][c]['mean'] for cell in pool.values()
                            if c in cell['conditions']])
             agg.setdefault('conditions', {})[c] = {'mean': m, 'half': h, 'layouts': n}
         numbers['groups'].append({'preset': preset, 'protocol': proto, 'conditions': conds,
@@ -246,11 +251,11 @@ def _mark(d: Mapping[str, Any] | None) -> str:
     return {'above': ' **above**', 'below': ' **below**'}.get(v, '')
 
 
-def _counts(a: Mapping[str, Any] | None) -> str:
+def _counts(a: Mapping[str, Any] | None, over: str = 'all') -> str:
     if not a:
         return 'n/a'
     return (f'{a["above"]} above, {a["below"]} below, {a["unresolved"]} not resolved; '
-            f'over {_layouts(a["layouts"])} {_pm(a, sign=True)}{_mark(a)}')
+            f'over {_layouts(a["layouts"], over)} {_pm(a, sign=True)}{_mark(a)}')
 
 
 #: The differences of the report: key, column title.
@@ -264,8 +269,9 @@ def _row(cells: list[str]) -> str:
     return '| ' + ' | '.join(cells) + ' |'
 
 
-def _layouts(n: int) -> str:
-    return f'{n} layout{"" if n == 1 else "s"}'
+def _layouts(n: int, over: str = 'all') -> str:
+    kind = 'generated ' if over == 'generated' else ''
+    return f'{n} {kind}layout{"" if n == 1 else "s"}'
 
 
 def _markdown(numbers: dict) -> str:
@@ -281,15 +287,18 @@ def _markdown(numbers: dict) -> str:
            '95% t-interval over seeds (none below 3 seeds); **above** / **below**: that '
            'interval excludes 0 (for Async above: its interval against every single module). '
            'Over layouts: the mean of the per-layout values, ± its 95% t-interval over '
-           'layouts (**above** / **below** likewise). The summary counts the layouts on '
-           'which each difference is above, below or not resolved.', '', '## Summary', '']
+           'layouts (**above** / **below** likewise), over the generated layouts where there '
+           'are any (the layouts read from files, designed by hand, are in the tables but not '
+           'in the aggregate), else over all. The summary counts the layouts on which each '
+           'difference is above, below or not resolved, among the same layouts.', '',
+           '## Summary', '']
     diffs = [(k, t) for k, t in _DIFFS if any(k in g['aggregate'] for g in numbers['groups'])]
     out += [_row(['preset', 'protocol', 'layouts'] + [t for _, t in diffs]),
             '|---|---|---|' + '---|' * len(diffs)]
     for g in numbers['groups']:
         a = g['aggregate']
         out.append(_row([g['preset'], g['protocol'], str(len(g['layouts']))]
-                        + [_counts(a.get(k)) for k, _ in diffs]))
+                        + [_counts(a.get(k), a['over']) for k, _ in diffs]))
     for g in numbers['groups']:
         conds = g['conditions']
         here = [(k, t) for k, t in _DIFFS if k in g['aggregate']]
@@ -311,7 +320,7 @@ def _markdown(numbers: dict) -> str:
         a = g['aggregate']
         cells = ([_pm(a.get('conditions', {}).get(k)) for k in conds]
                  + [_pm(a.get(k), True) + _mark(a.get(k)) for k, _ in here])
-        out.append(_row([f'over {_layouts(len(g["layouts"]))}', '', ''] + cells))
+        out.append(_row([f'over {_layouts(a["n_layouts"], a["over"])}', '', ''] + cells))
     return '\n'.join(out) + '\n'
 
 
@@ -329,7 +338,9 @@ def _draw(numbers: dict, out: Path) -> list[str]:
                 rows.append(ForestRow(name, ab['mean'], _nan(ab['half']), g['preset']))
         a = g['aggregate'].get('async_best')
         if a and a['mean'] is not None:
-            rows.append(ForestRow('over layouts', a['mean'], _nan(a['half']), g['preset'],
+            label = ('over generated layouts' if g['aggregate']['over'] == 'generated'
+                     else 'over layouts')
+            rows.append(ForestRow(label, a['mean'], _nan(a['half']), g['preset'],
                                   aggregate=True))
     panels = {k: v for k, v in panels.items() if v}
     if panels:
