@@ -3,6 +3,7 @@
     python tools/study_why.py studies/layouts camera --png docs/figures/study_camera.png
     python tools/study_why.py studies/layouts starts
     python tools/study_why.py studies/layouts layouts
+    python tools/study_why.py studies/layouts selection
 
 ``camera``: on config/arena.yaml, each condition's final evaluated success and Async - best
 single against the destination's detection range (``sensors.destination_range`` of the
@@ -16,6 +17,12 @@ the generated layouts of each layout's mean over seeds: where Async gains or los
 ``layouts``: across the generated layouts, per protocol, how Async - best single goes with
 the layout's hidden share, Innate's success and View - Innate (Pearson r with its 95%
 interval by Fisher's z).
+
+``selection``: at the end of learning, the arbiter's Pr(i | x_0) of (3) at each start A-E
+(the draw of an evaluation episode there, 5 sensor-noise draws), per protocol, mean over the
+generated layouts: which module Async chooses where. It loads each Async run's checkpoint
+from ``DIR/work`` and writes the numbers to ``DIR/selection.json`` (committed: without
+``DIR/work``, it prints from that file).
 
 Reads ``DIR/runs`` and ``DIR/report.json`` (``clis study --report-only --out DIR`` writes
 it); prints Markdown tables.
@@ -199,18 +206,102 @@ def layouts(out: Path) -> None:
               f'{_pearson(innate, y)} | {_pearson(vi, y)} |')
 
 
+def _start_probs(d: dict, out: Path, draws: int = 5) -> dict[str, list[float]] | None:
+    """Pr(i | x_0) at each start of the Async run ``d`` with its checkpoint's parameters."""
+    import re
+
+    from clis_app.core.runner import Agent
+    from clis_learner.core.checkpoint import load_checkpoint
+    from clis_learner.core.config import load_clis_params, preset_overrides
+    from clis_modules.core.decider import Percept
+    from cr_sim.core.arena import load_arena
+    from cr_sim.core.instants import DecisionClock
+    from cr_sim.core.sim import Simulator, load_sim_params
+    label = f'{d["arena"]}/{d["protocol"]}/{d["preset"]}/{d["condition"]}'
+    ckpt = out / 'work' / (re.sub(r'[^A-Za-z0-9_.=-]+', '_', label) + f'__s{d["seed"]}.npz')
+    if not ckpt.is_file():
+        return None
+    st = d['settings']
+    params = load_clis_params(overrides={**preset_overrides(st['preset']), **st['set']})
+    sim_params = load_sim_params(overrides=st['sim_set'])
+    arena = load_arena(out / 'arenas' / f'{d["arena"]}.yaml', sim_params.robot.radius)
+    agent = Agent(params, d['condition'], arena, np.random.default_rng(0),
+                  sim_params.robot.wheel_base)
+    load_checkpoint(ckpt, agent.modules)
+    agent.stream.clock = DecisionClock([m.period for m in agent.modules],
+                                       sim_params.episode.dt)
+    agent.selector.explore_now = False                 # as in an evaluation episode
+    probs = {}
+    for name in arena.start_names:
+        rows = []
+        for k in range(draws):
+            sim = Simulator(arena, sim_params, np.random.default_rng([d['seed'], 5, k]))
+            sim.reset(start=name)
+            percept = Percept(0.0, *sim.sense_all())
+            agent.selector.begin_episode(0.0)
+            agent.stream.begin_episode()
+            agent.stream.instant(0)                     # the draws of the first instant
+            for dec in agent.deciders:
+                dec.reset()
+            agent.selector.on_proposals([dec.decide(percept) for dec in agent.deciders], 0.0)
+            rows.append(agent.selector.start_probs)
+        probs[name] = np.mean(rows, axis=0).tolist()
+    return {'modules': agent.names, 'probs': probs}
+
+
+def selection(out: Path) -> None:
+    saved = out / 'selection.json'
+    runs = [d for d in _summaries(out) if d['condition'] == 'async'
+            and d['preset'] in ('improved', 'improved+bonus')
+            and d['settings'].get('layout_seed') is not None]
+    data: dict[str, dict] = {}
+    if (out / 'work').is_dir():
+        for d in runs:
+            key = f'{d["arena"]}/{d["protocol"]}/{d["preset"]}/s{d["seed"]}'
+            got = _start_probs(d, out)
+            if got is not None:
+                data[key] = got
+        tmp = saved.with_suffix('.json.tmp')
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + '\n')
+        tmp.replace(saved)
+    elif saved.is_file():
+        data = json.loads(saved.read_text())
+    if not data:
+        print(f'study_why: no checkpoints in {out}/work and no {saved}', file=sys.stderr)
+        return
+    # (preset, protocol) -> start -> module -> per-layout means
+    per: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(lambda: defaultdict(list))))
+    for key, got in data.items():
+        arena, proto, preset, _ = key.split('/')
+        for start, p in got['probs'].items():
+            for name, v in zip(got['modules'], p):
+                per[(preset, proto)][start][name][arena].append(v)
+    print("At the end of learning, Async's Pr(i | x_0) at each start [%], mean over the "
+          'generated layouts (each: its mean over seeds) ± 95% CI over layouts:\n')
+    print('| preset | protocol | module | ' + ' | '.join(STARTS) + ' |')
+    print('|---|---|---|' + '---|' * len(STARTS))
+    for (preset, proto) in sorted(per, key=lambda k: (k[0], PROTOCOLS.index(k[1]))):
+        by = per[(preset, proto)]
+        for name in ('innate', 'view', 'place'):
+            cells = [_pm(*_ci([100 * float(np.mean(v)) for v in by[s][name].values()]))
+                     for s in STARTS]
+            print(f'| {preset} | {proto} | {name} | ' + ' | '.join(cells) + ' |')
+    print(f'\n({len(data)} runs; {saved})', file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('out', type=Path, metavar='DIR', help='a clis study folder')
-    p.add_argument('what', choices=('camera', 'starts', 'layouts'))
+    p.add_argument('what', choices=('camera', 'starts', 'layouts', 'selection'))
     p.add_argument('--png', type=Path, help='camera: also draw the figure here')
     args = p.parse_args(argv)
     if not (args.out / 'plan.json').is_file():
         print(f'study_why: {args.out}: not a study folder (no plan.json)', file=sys.stderr)
         return 2
     {'camera': lambda: camera(args.out, args.png), 'starts': lambda: starts(args.out),
-     'layouts': lambda: layouts(args.out)}[args.what]()
+     'layouts': lambda: layouts(args.out),
+     'selection': lambda: selection(args.out)}[args.what]()
     return 0
 
 

@@ -337,7 +337,7 @@ def _draw(numbers: dict, out: Path) -> list[str]:
             if ab and ab['mean'] is not None:
                 rows.append(ForestRow(name, ab['mean'], _nan(ab['half']), g['preset']))
         a = g['aggregate'].get('async_best')
-        if a and a['mean'] is not None:
+        if a and a['mean'] is not None and a['layouts'] >= 3:      # an aggregate, not a copy
             label = ('over generated layouts' if g['aggregate']['over'] == 'generated'
                      else 'over layouts')
             rows.append(ForestRow(label, a['mean'], _nan(a['half']), g['preset'],
