@@ -37,6 +37,7 @@ from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param,
 from cr_sim.core.robot import clamp_wheels, integrate_arc, robot_defaults, wheels_to_twist
 from cr_sim.core.sim import IGNORED_SECTIONS, SimParams
 from cr_sim.interface import open_robot_interface
+from cr_sim.ros_support.lifecycle import reraise_unless_shut_down
 from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
 import numpy as np
 import rclpy
@@ -394,9 +395,10 @@ def main(args: list[str] | None = None) -> None:
         run(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:                   # noqa: BLE001 - publishing after a shutdown signal
-        if rclpy.ok():
-            raise
+    except Exception:                   # noqa: BLE001 - publishing or taking after a shutdown
+        # signal: the context may turn invalid a moment before rclpy.ok() says so (seen: a
+        # pybind11 RuntimeError from take_message at the SIGINT)
+        reraise_unless_shut_down()
     finally:
         if node.link is not None:
             try:
