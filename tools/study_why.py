@@ -4,6 +4,7 @@
     python tools/study_why.py studies/layouts starts
     python tools/study_why.py studies/layouts layouts
     python tools/study_why.py studies/layouts selection
+    python tools/study_why.py studies/layouts practice
 
 ``camera``: on config/arena.yaml, each condition's final evaluated success and Async - best
 single against the destination's detection range (``sensors.destination_range`` of the
@@ -23,6 +24,13 @@ interval by Fisher's z).
 generated layouts: which module Async chooses where. It loads each Async run's checkpoint
 from ``DIR/work`` and writes the numbers to ``DIR/selection.json`` (committed: without
 ``DIR/work``, it prints from that file).
+
+``practice``: how often the view module acts in a learning episode that starts where the
+innate policy fails (the straight line to the goal crosses a short obstacle, as from D, or a
+tall one hides the goal, as from E), View alone against inside Async, protocol ``wander``,
+on the first generated layouts (``--layouts``, ``--seeds``). It reruns those learning runs
+(seed for seed the study's: evaluation does not touch learning), recording where each
+episode starts, and writes ``DIR/practice.json`` (committed: ``--from-json`` prints it).
 
 Reads ``DIR/runs`` and ``DIR/report.json`` (``clis study --report-only --out DIR`` writes
 it); prints Markdown tables.
@@ -289,19 +297,100 @@ def selection(out: Path) -> None:
     print(f'\n({len(data)} runs; {saved})', file=sys.stderr)
 
 
+def _practice_run(job: tuple[str, str, int, int, str]) -> dict:
+    """One learning run of ``condition`` on ``arena`` (wander, improved): per episode, whether
+    it started where the straight line to the goal is blocked, who acted, and the outcome."""
+    arena_path, condition, seed, episodes, label = job
+    from clis_app.core.runner import Agent, run_episode
+    from clis_learner.core.config import load_clis_params, preset_overrides
+    from cr_sim.core.arena import load_arena
+    from cr_sim.core.geometry import segments_blocked
+    from cr_sim.core.sim import Simulator, load_sim_params
+    from cr_sim.core.starts import draw_start
+    params = load_clis_params(overrides=preset_overrides('improved'))
+    sim_params = load_sim_params()
+    arena = load_arena(arena_path, sim_params.robot.radius)
+    sim = Simulator(arena, sim_params, np.random.default_rng([seed, 0]))
+    start_rng = np.random.default_rng([seed, 1])
+    agent = Agent(params, condition, arena, np.random.default_rng([seed, 2]),
+                  sim_params.robot.wheel_base)
+    d = arena.destination
+    boxes = arena.box_array()
+    starts: list[tuple[float, float]] = []
+    reset = sim.reset
+
+    def recording_reset(*args, **kwargs):
+        obs = reset(*args, **kwargs)
+        starts.append(tuple(float(v) for v in sim.pose[:2]))
+        return obs
+    sim.reset = recording_reset
+    counts = {'episodes': episodes, 'hard': 0, 'view_hard': 0, 'reached_hard': 0}
+    for _ in range(episodes):
+        start, heading = draw_start('wander', arena, start_rng)
+        row = run_episode(sim, agent, start, heading, learn=True)
+        x, y = starts[-1]
+        if segments_blocked(x, y, np.array([[d.x, d.y]]), boxes)[0]:
+            counts['hard'] += 1
+            counts['view_hard'] += row['behaviour'] == 'view'
+            counts['reached_hard'] += int(row['reached'])
+    return {'label': label, 'condition': condition, 'seed': seed, **counts}
+
+
+def practice(out: Path, n_layouts: int, seeds: int, episodes: int, from_json: bool) -> None:
+    saved = out / 'practice.json'
+    if from_json:
+        data = json.loads(saved.read_text())
+    else:
+        from concurrent.futures import ProcessPoolExecutor
+        import os
+        names = sorted(p.stem for p in (out / 'arenas').glob('gen-s*.yaml'))[:n_layouts]
+        jobs = [(str(out / 'arenas' / f'{a}.yaml'), c, s, episodes, a)
+                for a in names for c in ('view', 'async') for s in range(seeds)]
+        with ProcessPoolExecutor(os.cpu_count() or 1) as pool:
+            data = list(pool.map(_practice_run, jobs))
+        tmp = saved.with_suffix('.json.tmp')
+        tmp.write_text(json.dumps(data, indent=1) + '\n')
+        tmp.replace(saved)
+    layouts = sorted({d['label'] for d in data})
+    n_seeds = len({d['seed'] for d in data})
+    n_eps = data[0]['episodes']
+    print(f'Learning episodes that start where the straight line to the goal is blocked '
+          f'(protocol wander, improved; {len(layouts)} generated layouts x {n_seeds} seeds x '
+          f'{n_eps} episodes), per run, mean ± 95% CI over runs:\n')
+    print('| condition | episodes from a blocked start | of them, the view module acting | '
+          'the view module acting from a blocked start | success from a blocked start |')
+    print('|---|---|---|---|---|')
+    for cond in ('view', 'async'):
+        runs = [d for d in data if d['condition'] == cond]
+        n_hard = [d['hard'] for d in runs]
+        view_share = [100 * d['view_hard'] / max(d['hard'], 1) for d in runs]
+        view_hard = [d['view_hard'] for d in runs]
+        succ = [100 * d['reached_hard'] / max(d['hard'], 1) for d in runs]
+        print(f'| {cond} | {_pm(*_ci(n_hard))} | {_pm(*_ci(view_share))}% | '
+              f'{_pm(*_ci(view_hard))} | {_pm(*_ci(succ))}% |')
+    print(f'\n({saved})', file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('out', type=Path, metavar='DIR', help='a clis study folder')
-    p.add_argument('what', choices=('camera', 'starts', 'layouts', 'selection'))
+    p.add_argument('what', choices=('camera', 'starts', 'layouts', 'selection', 'practice'))
     p.add_argument('--png', type=Path, help='camera: also draw the figure here')
+    p.add_argument('--layouts', type=int, default=4, help='practice: generated layouts')
+    p.add_argument('--seeds', type=int, default=3, help='practice: seeds per layout')
+    p.add_argument('--episodes', type=int, default=1000, help='practice: learning episodes')
+    p.add_argument('--from-json', action='store_true',
+                   help='practice: print DIR/practice.json instead of running')
     args = p.parse_args(argv)
     if not (args.out / 'plan.json').is_file():
         print(f'study_why: {args.out}: not a study folder (no plan.json)', file=sys.stderr)
         return 2
     {'camera': lambda: camera(args.out, args.png), 'starts': lambda: starts(args.out),
      'layouts': lambda: layouts(args.out),
-     'selection': lambda: selection(args.out)}[args.what]()
+     'selection': lambda: selection(args.out),
+     'practice': lambda: practice(args.out, args.layouts, args.seeds, args.episodes,
+                                  args.from_json)}[args.what]()
     return 0
 
 
