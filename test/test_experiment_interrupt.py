@@ -262,3 +262,17 @@ def test_a_failed_run_stops_the_others_and_says_why(tmp_path, monkeypatch, worke
                             experiment.Progress(total_episodes=3, runs=3, quiet=True))
     assert message in str(err.value)
     assert _runs_alive() == []
+
+
+def test_the_eta_weighs_each_runs_episodes_by_their_cost(capsys, monkeypatch):
+    """Longest runs go first: an ETA by episodes alone would count the cheap ones left as
+    dear as the dear ones done (a study's first ETA was twice its time)."""
+    from clis_app import experiment
+    clock = iter([100.0, 110.0])
+    monkeypatch.setattr(experiment.time, 'monotonic', lambda: next(clock))
+    progress = experiment.Progress(total_episodes=200, runs=2, cost=[(100, 5.5), (100, 1.0)])
+    progress.finish(0, 100, 'async done')      # 10 s for the first (dear) half of the episodes
+    line = capsys.readouterr().err
+    # work done 550 of 650: 10 s * 100 / 550 = 1.8 s left (by episodes alone: 10 s)
+    assert 'ETA 0.0 min' in line, line
+    assert '100/200 episodes, 1/2 runs' in line

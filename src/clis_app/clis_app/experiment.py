@@ -58,6 +58,11 @@ def _cost(condition: str) -> float:
         return 1.0
 
 
+def job_costs(specs: list[JobSpec]) -> list[tuple[int, float]]:
+    """``(episodes, relative cost of an episode)`` of each spec, for :class:`Progress`."""
+    return [(s.episodes, _cost(s.condition)) for s in specs]
+
+
 def longest_first(specs: list[JobSpec]) -> list[JobSpec]:
     """``specs`` with the most expensive runs first (stable): on a few workers the last runs
     then are short ones, and no worker waits idle for a long one to finish. The order does not
@@ -183,12 +188,17 @@ def _overrides(items: list[str], flag: str = '--set') -> dict[str, Any]:
 
 @dataclass
 class Progress:
-    """Prints one line with the state of all runs, at most every ``every`` seconds."""
+    """Prints one line with the state of all runs, at most every ``every`` seconds.
+
+    ``cost``: each job's ``(episodes, relative cost of an episode)`` (:func:`_cost`), in job
+    order; the ETA then weighs each run's episodes by it (the runs go longest first, so an
+    ETA by episodes alone starts at about twice the time left). Without it, by episodes."""
 
     total_episodes: int
     runs: int
     quiet: bool = False
     every: float = 2.0
+    cost: list[tuple[int, float]] | None = None
 
     def __post_init__(self) -> None:
         self.t0 = time.monotonic()
@@ -216,8 +226,12 @@ class Progress:
         self.last = now
         done = sum(self.done_eps.values())
         frac = done / max(self.total_episodes, 1)
+        work = frac
+        if self.cost:
+            total = sum(n * c for n, c in self.cost)
+            work = sum(eps * self.cost[j][1] for j, eps in self.done_eps.items()) / total
         elapsed = now - self.t0
-        eta = elapsed * (1 - frac) / frac if frac > 0 else float('nan')
+        eta = elapsed * (1 - work) / work if work > 0 else float('nan')
         bar = '#' * int(30 * frac) + '.' * (30 - int(30 * frac))
         line = (f'[{bar}] {done}/{self.total_episodes} episodes, {self.finished}/{self.runs} '
                 f'runs, {elapsed / 60:.1f} min, ETA {eta / 60:.1f} min | {self.note}')
@@ -347,7 +361,7 @@ def main(args: argparse.Namespace) -> int:
             from clis_app.ray_backend import run_ray
             run_ray(todo, args.workers, args.address,
                     Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
-                             quiet=args.quiet))
+                             quiet=args.quiet, cost=job_costs(todo)))
         except ImportError as exc:
             return _fail(f'--backend ray needs ray ({exc}); `make setup` installs it')
         except ConnectionError as exc:
@@ -463,7 +477,7 @@ def _run_all(todo: list[JobSpec], workers: int, quiet: bool,
     waiting forever. Here nothing the parent waits on is shared with a process it kills."""
     if progress is None:
         progress = Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
-                            quiet=quiet)
+                            quiet=quiet, cost=job_costs(todo))
     ctx = mp.get_context('fork' if sys.platform.startswith('linux') else 'spawn')
     if ctx.get_start_method() == 'fork':
         warm_up(todo[0])          # compiled kernels loaded once, inherited by every run

@@ -524,8 +524,9 @@ def _make_progress(todo_runs: list[Run], specs: list, out: Path, hidden: dict[st
             _store(run, specs[job], out, hidden[run.arena])
             super().finish(job, episodes, f'{run.label} s{run.seed} done')
 
+    from clis_app.experiment import job_costs
     return StudyProgress(total_episodes=sum(s.episodes for s in specs), runs=len(specs),
-                         quiet=quiet)
+                         quiet=quiet, cost=job_costs(specs))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
