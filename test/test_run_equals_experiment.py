@@ -51,7 +51,11 @@ def train_rows(path: Path) -> dict[int, dict[str, str]]:
 @pytest.mark.parametrize('condition', CONDITIONS)
 def test_run_and_experiment_learn_the_same_episodes(tmp_path, condition):
     params = tmp_path / 'params.yaml'
-    params.write_text(f'/**:\n  ros__parameters:\n    episode: {{time_limit: {TIME_LIMIT!r}}}\n')
+    # the learner closes an episode as soon as all its records are in; close_timeout only
+    # bounds the wait for one that never comes. A loaded host can hold a record back longer
+    # than the default 2 wall seconds, and the episode would be learned without it
+    params.write_text(f'/**:\n  ros__parameters:\n    episode: {{time_limit: {TIME_LIMIT!r}}}\n'
+                      '    learner_node: {close_timeout: 30.0}\n')
     clis('run', '--condition', condition, '--seed', str(SEED), '--episodes', str(EPISODES),
          '--params', str(params), '--out', str(tmp_path / 'run'), '--quiet', '--speed', '0')
     clis('experiment', '--conditions', condition, '--seeds', '1', '--first-seed', str(SEED),
