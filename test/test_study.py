@@ -5,6 +5,7 @@ through reports; the report's counts and intervals; the arena commands."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 import shutil
 
@@ -281,3 +282,18 @@ def test_arena_generate_writes_the_same_bytes_and_show_checks_and_draws(tmp_path
         assert clis(['arena', *argv]) == 2
         err = capsys.readouterr().err
         assert err.count('\n') == 1 and name in err, err
+
+
+def test_a_reader_that_stops_early_gets_no_traceback(tmp_path):
+    """``clis study SPEC --plan | head -1``: the pipe closes before clis has written."""
+    import subprocess
+    import sys
+    spec = _spec(tmp_path / 'spec', MICRO)
+    read, write = os.pipe()
+    os.close(read)                                # the reader is gone before any output
+    proc = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'study', str(spec), '--plan',
+                           '--out', str(tmp_path / 'out')], stdout=write,
+                          stderr=subprocess.PIPE, text=True, timeout=120,
+                          env={**os.environ, 'PYTHONPATH': os.pathsep.join(sys.path)})
+    os.close(write)
+    assert proc.returncode == 0 and 'Traceback' not in proc.stderr, proc.stderr

@@ -83,6 +83,11 @@ def main(argv: list[str] | None = None) -> int:
             return code
     except KeyboardInterrupt:
         pass
+    except BrokenPipeError:
+        # the reader of stdout went away (`clis ... | head`): what it read is what it wanted;
+        # stdout goes to /dev/null so that Python's exit does not fail flushing it
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
