@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import math
+import signal
 import time
 
 from cr_sim.core.arena import load_arena
@@ -372,9 +373,11 @@ class BridgeNode(Node):
                                                     'cr'))
 
 
-def run(node: BridgeNode, executor: SingleThreadedExecutor, period: float = 0.005) -> None:
-    """Serve the link and the ROS callbacks in one thread."""
-    while rclpy.ok():
+def run(node: BridgeNode, executor: SingleThreadedExecutor, period: float = 0.005,
+        stop: Callable[[], bool] = lambda: False) -> None:
+    """Serve the link and the ROS callbacks in one thread, until rclpy shuts down or
+    ``stop()``."""
+    while rclpy.ok() and not stop():
         for _ in range(20):                     # the callbacks that are ready, not more
             executor.spin_once(timeout_sec=0.0)
         node.poll(period)
@@ -382,7 +385,13 @@ def run(node: BridgeNode, executor: SingleThreadedExecutor, period: float = 0.00
 
 def main(args: list[str] | None = None) -> None:
     print_help_and_exit_if_asked(__doc__, args)
-    rclpy.init(args=args)
+    # Ctrl-C and SIGTERM only raise a flag: the loop ends between two iterations and the
+    # motors get their zero command, never an exception from inside rclpy (rclpy's own
+    # handler shut the context down under the executor, or interrupted a Task half-made)
+    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    stopping: list[int] = []
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda sig, frame: stopping.append(sig))
     try:
         node = BridgeNode()
     except ConfigError as exc:
@@ -392,7 +401,7 @@ def main(args: list[str] | None = None) -> None:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        run(node, executor)
+        run(node, executor, stop=lambda: bool(stopping))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:                   # noqa: BLE001 - publishing or taking after a shutdown
