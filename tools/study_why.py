@@ -53,26 +53,14 @@ STARTS = 'ABCDE'
 
 
 def _summaries(out: Path) -> list[dict]:
-    plan = json.loads((out / 'plan.json').read_text())
-    keys = {tuple(k) for k in plan['runs']}
-    rows = []
-    for path in sorted((out / 'runs').rglob('*.json')):
-        d = json.loads(path.read_text())
-        if (d['arena'], d['protocol'], d['preset'], d['condition'], d['seed']) in keys:
-            rows.append(d)
-    return rows
+    from clis_app.study_report import study_summaries
+    return study_summaries(out)[0]
 
 
 def _ci(values: list[float]) -> tuple[float, float]:
     """Mean and half-width of the 95% t-interval (NaN below 3 values)."""
-    from scipy import stats
-    v = np.asarray([x for x in values if math.isfinite(x)], float)
-    if len(v) == 0:
-        return math.nan, math.nan
-    if len(v) < 3:
-        return float(v.mean()), math.nan
-    return float(v.mean()), float(stats.t.ppf(0.975, len(v) - 1) * v.std(ddof=1)
-                                  / math.sqrt(len(v)))
+    from clis_app.claims import mean_ci
+    return mean_ci(values)
 
 
 def _pm(m: float, h: float, sign: bool = False) -> str:

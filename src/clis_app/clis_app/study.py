@@ -47,7 +47,7 @@ import time
 from typing import Any
 
 from clis_app.cli_help import HelpFormatter
-from clis_app.study_report import PROTOCOLS, SUMMARY_FORMAT, report_only
+from clis_app.study_report import PROTOCOLS, SUMMARY_FORMAT, is_single, report_only
 
 __all__ = ['SpecError', 'Run', 'plan', 'summarise', 'cpu_hours', 'register', 'main',
            'PROTOCOLS', 'GRID_KEYS', 'SUMMARY_FORMAT']
@@ -311,7 +311,7 @@ def _grid_runs(grid: Mapping[str, Any], where: str, spec_dir: Path, out: Path,
                                 'set': p.sets, 'sim_set': dict(g['sim_set']),
                                 'arena_sha256': sha, 'layout_seed': a.seed}
                     if p.singles is not None:
-                        if _is_single(cond):
+                        if is_single(cond):
                             raise _allowed(f'{where}conditions', cond, 'conditions of more '
                                            f'than one module with preset {p.name} (its '
                                            f'single modules are those of {p.singles})')
@@ -372,17 +372,12 @@ def plan(spec: Any, spec_dir: Path, out: Path) -> tuple[list[Run], dict[str, _Ar
     return list(unique.values()), cache
 
 
-def _is_single(condition: str) -> bool:
-    from clis_modules.core.plugin import parse_condition
-    return len(parse_condition(condition).modules) == 1
-
-
 def _check_singles(runs: list[Run]) -> None:
     """Each run of a preset with ``singles: OTHER`` has single-module runs of OTHER on its
     arena, protocol and seed, made with the same episodes, evaluation and simulator."""
     same = ('episodes', 'eval_every', 'eval_episodes', 'sim_set', 'arena_sha256')
     singles = {(r.preset, r.arena, r.protocol, r.seed): r for r in runs
-               if _is_single(r.condition)}
+               if is_single(r.condition)}
     for r in runs:
         other = dict(r.settings).get('singles')
         if other is None:

@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['SUMMARY_FORMAT', 'PROTOCOLS', 'ReportError', 'load_summaries', 'report',
+__all__ = ['SUMMARY_FORMAT', 'PROTOCOLS', 'ReportError', 'load_summaries', 'study_summaries',
+           'is_single', 'report',
            'report_only']
 
 #: Format of the per-run summary files.
@@ -67,19 +68,23 @@ def load_summaries(out: Path) -> list[dict]:
     return rows
 
 
+def study_summaries(out: Path) -> tuple[list[dict], int | None, str | None]:
+    """The summaries of the study in ``out`` (those of its ``plan.json``, when it has one),
+    the number of runs planned and the study's name."""
+    summaries = load_summaries(out)
+    if not (out / 'plan.json').is_file():
+        return summaries, None, None
+    plan_data = json.loads((out / 'plan.json').read_text())
+    keys = {tuple(k) for k in plan_data['runs']}
+    # runs of an earlier, larger SPEC left in DIR/runs are not this study's
+    return ([d for d in summaries if (d['arena'], d['protocol'], d['preset'], d['condition'],
+                                      d['seed']) in keys], len(keys), plan_data.get('name'))
+
+
 def report_only(out: Path) -> int:
     """Write ``DIR/report.md``, ``report.json`` and the figures from the summaries."""
     try:
-        summaries = load_summaries(out)
-        planned, name = None, None
-        if (out / 'plan.json').is_file():
-            plan_data = json.loads((out / 'plan.json').read_text())
-            keys = {tuple(k) for k in plan_data['runs']}
-            name = plan_data.get('name')
-            planned = len(keys)
-            # runs of an earlier, larger SPEC left in DIR/runs are not this study's
-            summaries = [d for d in summaries if (d['arena'], d['protocol'], d['preset'],
-                                                  d['condition'], d['seed']) in keys]
+        summaries, planned, name = study_summaries(out)
     except (ValueError, KeyError, TypeError) as exc:
         return _fail(f'--out {out}: {exc}')
     if not summaries:
@@ -121,7 +126,8 @@ def _paired(a: dict[int, float], b: dict[int, float]) -> list[float]:
     return [a[s] - b[s] for s in sorted(a) if s in b and math.isfinite(a[s] - b[s])]
 
 
-def _is_single(condition: str) -> bool:
+def is_single(condition: str) -> bool:
+    """Whether ``condition`` has one module (View, Place... alone)."""
     from clis_modules.core.plugin import parse_condition
     return len(parse_condition(condition).modules) == 1
 
@@ -140,7 +146,7 @@ def _cell(summaries: list[dict], base: list[dict] | None = None) -> dict:
     for c, r in rates.items():
         m, h, n = _ci(list(r.values()))
         cell['conditions'][c] = {'mean': m, 'half': h, 'n': n}
-    singles = [c for c in rates if _is_single(c)]
+    singles = [c for c in rates if is_single(c)]
     if 'async' in rates and singles:
         best = max(singles, key=lambda c: (cell['conditions'][c]['mean'], -singles.index(c)))
         m, h, n = _ci(_paired(rates['async'], rates[best]))
@@ -187,7 +193,7 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
         for arena, rows in groups[(preset, proto)].items():
             seeds = {d['seed'] for d in rows}
             rows += [d for d in groups.get((other, proto), {}).get(arena, [])
-                     if _is_single(d['condition']) and d['seed'] in seeds]
+                     if is_single(d['condition']) and d['seed'] in seeds]
     numbers: dict[str, Any] = {'name': name, 'runs': len(summaries), 'planned': planned,
                                'groups': []}
     for (preset, proto) in sorted(groups, key=lambda k: (k[0], PROTOCOLS.index(k[1])

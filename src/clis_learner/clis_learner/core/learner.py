@@ -72,7 +72,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 import math
 
-from clis_modules.core.arbiter import selection_probs, uncertainty
+from clis_modules.core.arbiter import count_start, selection_probs, uncertainty
 from clis_modules.core.modules import ModuleCore
 import numpy as np
 
@@ -179,9 +179,7 @@ class Learner:
                 rp = replays[m.name]
                 if m.visits is not None and rp is not None and rp.on[0]:
                     # the acting module was chosen from x_0: C_i += |b_i(x_0)| / sum |b_i(x_0)|
-                    a = np.abs(rp.B[0])
-                    if a.sum() > 0.0:
-                        m.visits = m.visits + a / a.sum()
+                    m.visits = count_start(m.visits, rp.B[0])
         return out
 
     # ------------------------------------------------------------------ step 1-3
@@ -244,8 +242,10 @@ class Learner:
         pi : np.ndarray, shape (L, N)
         probs : np.ndarray, shape (L, N) or (N,)
         """
+        kappa = self.arbiter.bonus if kappa is None else kappa
         pi = np.empty((len(t), len(self.modules)))
         values = np.empty((len(t), len(self.modules)))
+        bonus = np.zeros(len(self.modules)) if kappa > 0.0 else None
         for j, mod in enumerate(self.modules):
             t_j, B_j = memory.decisions(mod.name)  # noqa: N806
             if B_j is None:
@@ -253,18 +253,12 @@ class Learner:
             k = latest_index(t_j, t)
             pi[:, j] = mod.policy.density_batch(B_j[k], U)
             values[:, j] = B_j[k] @ mod.w
+            if bonus is not None and mod.visits is not None:
+                # the bonus kappa u_j(x_0) of the episode's draw (selection = episode), from
+                # the counts the episode was played with (updated after learn())
+                bonus[j] = kappa * uncertainty(B_j[k[0]], mod.visits)
         gammas = [mod.gamma for mod in self.modules]
         rows = values[:1] if self.arbiter.selection == 'episode' else values
-        kappa = self.arbiter.bonus if kappa is None else kappa
-        bonus = None
-        if kappa > 0.0:
-            # the bonus kappa u_j(x_0) of the episode's draw (selection = episode), from the
-            # counts the episode was played with (updated after learn())
-            bonus = kappa * np.array([
-                0.0 if mod.visits is None
-                else uncertainty(B_j[latest_index(t_j, t[:1])[0]], mod.visits)
-                for mod, (t_j, B_j) in zip(self.modules, map(memory.decisions,
-                                                           [m.name for m in self.modules]))])
         probs = np.array([selection_probs(v, gammas, self.beta, None, self.arbiter.rule,
                                           self.arbiter.scale_min, self.arbiter.explore, bonus)
                           for v in rows])

@@ -53,8 +53,8 @@ from numpy.typing import ArrayLike
 
 from clis_modules.core.proposal import Proposal
 
-__all__ = ['ArbiterParams', 'selection_probs', 'uncertainty', 'refuse_bonus', 'Arbiter',
-           'Command', 'Selector']
+__all__ = ['ArbiterParams', 'selection_probs', 'uncertainty', 'count_start', 'refuse_bonus',
+           'Arbiter', 'Command', 'Selector']
 
 
 @dataclass(frozen=True)
@@ -110,6 +110,14 @@ def uncertainty(b: np.ndarray, visits: np.ndarray) -> float:
     mass = float(a.sum())
     n = float(a @ visits) / mass if mass > 0.0 else 0.0
     return 1.0 / math.sqrt(1.0 + n)
+
+
+def count_start(visits: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The counts ``C_i`` of :func:`uncertainty` after module i was chosen from a start with
+    features ``b``: ``C_i + |b| / sum |b|`` (a new array; unchanged for features all 0)."""
+    a = np.abs(b)
+    mass = a.sum()
+    return visits + a / mass if mass > 0.0 else visits
 
 
 def selection_probs(values: ArrayLike, gammas: ArrayLike, beta: float,

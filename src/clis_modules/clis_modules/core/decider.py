@@ -95,7 +95,8 @@ class Decider:
     def decide(self, percept: Percept) -> Proposal:
         """Decide at ``percept.t``: features, then ``u ~ pi_i(x, .)`` (10) and ``V_i(x)``."""
         m = self.module
-        if m.on_motion is not None and not self._first:
+        first = self._first
+        if m.on_motion is not None and not first:
             # the place module, paper III-D: b(x') <- sum_x Pr(x' | x, u) b(x), u = odometry
             # since the last decision (none before the first decision of an episode)
             m.on_motion(*self._odo)
@@ -119,7 +120,8 @@ class Decider:
         return Proposal(m.name, float(percept.t), b,
                         np.array((m0 + sigma * n0, m1 + sigma * n1)), np.array((m0, m1)),
                         float(sigma), value, self.version,
-                        0.0 if m.visits is None else uncertainty(b, m.visits))
+                        # the exploration bonus's u_i(x_0): read at the episode's first draw
+                        uncertainty(b, m.visits) if first and m.visits is not None else 0.0)
 
     def observe(self, percept: Percept) -> np.ndarray:
         """Features ``b_i(x(t))`` at ``percept.t``, an instant at which the module does not

@@ -40,8 +40,9 @@ class Proposal(NamedTuple):
     version : int
         Version of the parameters the decision used (learned episodes; 0 = initial).
     uncertainty : float
-        ``u_i(x(t_l))`` of the exploration bonus (:func:`clis_modules.core.arbiter.uncertainty`);
-        0 when the module keeps no selection counts (``arbiter.bonus = 0``).
+        ``u_i(x(t_l))`` of the exploration bonus (:func:`clis_modules.core.arbiter.uncertainty`)
+        at the episode's first decision, whose values the start draw reads; 0 at the others
+        and when the module keeps no selection counts (``arbiter.bonus = 0``).
     """
 
     module: str

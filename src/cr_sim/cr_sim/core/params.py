@@ -173,11 +173,17 @@ def build_fields(cls: type, mapping: Mapping[str, Any], where: str = '') -> Any:
     return obj
 
 
-def as_dict(obj: Any) -> dict:
-    """Plain nested dict of a parameter dataclass (tuples become lists), for YAML/JSON."""
+def as_dict(obj: Any, drop_off: bool = False) -> dict:
+    """Plain nested dict of a parameter dataclass (tuples become lists), for YAML/JSON;
+    ``drop_off``: without the fields at their declared ``off`` value (:func:`param`)."""
+    def kept(v: Any, f: dataclasses.Field) -> bool:
+        off = f.metadata.get('off')
+        return not drop_off or off is None or getattr(v, f.name) != off
+
     def conv(v: Any) -> Any:
         if dataclasses.is_dataclass(v):
-            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)
+                    if kept(v, f)}
         if isinstance(v, (tuple, list)):
             return [conv(x) for x in v]
         return v
@@ -185,17 +191,9 @@ def as_dict(obj: Any) -> dict:
 
 
 def identity_dict(obj: Any) -> dict:
-    """:func:`as_dict` without the fields at their declared ``off`` value (:func:`param`):
-    what identifies a configuration."""
-    def conv(v: Any) -> Any:
-        if dataclasses.is_dataclass(v):
-            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)
-                    if f.metadata.get('off') is None
-                    or getattr(v, f.name) != f.metadata['off']}
-        if isinstance(v, (tuple, list)):
-            return [conv(x) for x in v]
-        return v
-    return conv(obj)
+    """What identifies a configuration: :func:`as_dict` without the fields at their declared
+    ``off`` value."""
+    return as_dict(obj, drop_off=True)
 
 
 def replace(obj: Any, **changes: Any) -> Any:
