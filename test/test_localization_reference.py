@@ -12,6 +12,7 @@ import math
 from clis_modules.core import localization_reference as ref
 from clis_modules.core.localization import MarkovLocalizer
 from clis_modules.core.modules import arena_map, load_module_params
+from clis_modules.core.plugin import Floor
 from cr_sim.core.arena import load_arena
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -78,3 +79,26 @@ def test_a_trajectory_is_the_reference():
         loc.update(z)
         assert loc._p.tobytes() == p.tobytes()
     assert p.max() > 10 * p.mean()            # the belief has concentrated
+
+
+@PROPERTY
+@given(st.integers(0, 2**32 - 1), st.floats(0.2, 3.5), st.floats(0.2, 3.5),
+       st.sampled_from([0.15, 0.3, 0.6]), st.integers(1, 13), st.sampled_from([1, 8]),
+       odometry, st.lists(bearing, min_size=4, max_size=4))
+def test_any_rectangular_grid_is_the_reference(seed, width, height, cell, n_headings,
+                                               sharpness, odo, z):
+    """Floors of any size and grids of any resolution, down to one cell or one heading bin
+    (blurs wider than the grid, shifts off it): the compiled updates are the reference's."""
+    lm, _, _ = arena_map(load_arena())
+    prm = dataclasses.replace(load_module_params().place.localization, cell_size=cell,
+                              n_headings=n_headings)
+    loc = MarkovLocalizer(prm, lm, Floor(-0.5 * width, -0.5 * height, 0.5 * width,
+                                         0.5 * height))
+    loc.set_belief(_belief(loc, seed, sharpness))
+    p = loc._p.copy()
+    moved = ref.predict(loc, p, *odo)
+    loc.predict(*odo)
+    assert loc._p.tobytes() == moved.tobytes()
+    want = ref.update(loc, moved, z)
+    loc.update(z)
+    assert loc._p.tobytes() == want.tobytes()

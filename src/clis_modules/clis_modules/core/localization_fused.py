@@ -102,8 +102,8 @@ class Scratch:
         The best sub-pose log-likelihood of each cell.
     cells : np.ndarray, shape (N,), int64
         The cells with an unclipped sub-pose.
-    vals : np.ndarray, shape (N Q T,)
-        Their unclipped values, then their exps.
+    vals, exps : np.ndarray, shape (N Q T,)
+        Their sub-pose values (clipped at the floor), and the exps of those.
     lik : np.ndarray, shape (N,)
         Their likelihoods.
     """
@@ -118,6 +118,7 @@ class Scratch:
     cell_max: np.ndarray
     cells: np.ndarray
     vals: np.ndarray
+    exps: np.ndarray
     lik: np.ndarray
 
     @classmethod
@@ -131,7 +132,7 @@ class Scratch:
                    np.empty((n_q, nx, ny)), np.empty((n_q + 1, nx, ny)),
                    np.empty((nx, ny), dtype=np.bool_), np.empty(grid.shape),
                    np.empty(size, dtype=np.int64), np.empty(size * n_q * grid.cos_th.shape[1]),
-                   np.empty(size))
+                   np.empty(size * n_q * grid.cos_th.shape[1]), np.empty(size))
 
 
 def predict_into(grid: Grid, scratch: Scratch, p: np.ndarray, dx: float, dy: float,
@@ -163,7 +164,7 @@ def update_into(grid: Grid, scratch: Scratch, p: np.ndarray, z: np.ndarray,
     s = scratch
     return _update_kernel(z, grid.kappa, grid.cos_phi, grid.sin_phi, grid.cos_tk, grid.sin_tk,
                           grid.cos_th, grid.sin_th, LOG_LIK_MIN, EXP_LOG_LIK_MIN, s.cc, s.ss,
-                          s.bound, s.computed, s.cell_max, s.cells, s.vals, LOOPS, p,
+                          s.bound, s.computed, s.cell_max, s.cells, s.vals, s.exps, LOOPS, p,
                           grid.uniform, grid.floor_uniform, grid.floor, EVIDENCE_MIN, s.lik,
                           out)
 
@@ -206,52 +207,98 @@ def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.n
 
 
 @njit
+def _add_pair(d: np.ndarray, a: np.ndarray, b: np.ndarray, w: float) -> None:
+    """``d += (a + b) w`` element by element (arrays of one length). Indices from 0 up: a
+    loop indexed ``f - lo`` may be negative for numba (an index wrapped from the end), and
+    that check keeps the loop from being vectorized; the arithmetic is the same."""
+    for i in range(d.shape[0]):
+        d[i] += (a[i] + b[i]) * w
+
+
+@njit
+def _scaled(d: np.ndarray, a: np.ndarray, w: float) -> None:
+    """``d = a w`` element by element."""
+    for i in range(d.shape[0]):
+        d[i] = a[i] * w
+
+
+@njit
 def _blur_passes(src: np.ndarray, dst: np.ndarray, w0: np.ndarray, w1: np.ndarray,
                  w2: np.ndarray) -> np.ndarray:
     """The passes of :func:`_blur` from ``src`` (overwritten), ``dst`` scratch of its shape:
-    returns the one of the two that holds the result."""
+    returns the one of the two that holds the result.
+
+    Each pass runs over long contiguous stretches of the flat arrays: every cell gets
+    ``x[0] w[r]``, then ``(x[j] + x[-j]) w[r + j]`` added for ``j = -r .. -1`` in that order,
+    its neighbours read directly where they are on the grid; the cells within ``r`` of a
+    wall (mirrored neighbours) are then computed again from the start through
+    :func:`_extend`."""
     n_k, nx, ny = src.shape
+    plane = nx * ny
     if w0.size:
+        # heading: periodic, whole (x, y) planes
         r = w0.size // 2
+        s_flat, d_flat = src.reshape(-1), dst.reshape(-1)
         for k in range(n_k):
-            for i in range(nx):
-                for c in range(ny):
-                    dst[k, i, c] = src[k, i, c] * w0[r]
+            d = d_flat[k * plane:(k + 1) * plane]
+            _scaled(d, s_flat[k * plane:(k + 1) * plane], w0[r])
             for j in range(-r, 0):
                 lo, hi = _extend(k + j, n_k, True), _extend(k - j, n_k, True)
-                wj = w0[r + j]
-                for i in range(nx):
-                    for c in range(ny):
-                        dst[k, i, c] += (src[lo, i, c] + src[hi, i, c]) * wj
+                _add_pair(d, s_flat[lo * plane:(lo + 1) * plane],
+                          s_flat[hi * plane:(hi + 1) * plane], w0[r + j])
         src, dst = dst, src
     if w1.size:
+        # x: mirrored; the whole array as one line (neighbours f -+ r ny), then the rows
+        # within r of a wall, whose neighbours on that line are in other planes, again
         r = w1.size // 2
+        s_flat, d_flat = src.reshape(-1), dst.reshape(-1)
+        n = s_flat.shape[0]
+        _scaled(d_flat, s_flat, w1[r])
+        for j in range(-r, 0):
+            if n + 2 * j * ny > 0:
+                _add_pair(d_flat[-j * ny:n + j * ny], s_flat[:n + 2 * j * ny],
+                          s_flat[-2 * j * ny:], w1[r + j])
         for k in range(n_k):
+            o = k * plane
             for i in range(nx):
-                for c in range(ny):
-                    dst[k, i, c] = src[k, i, c] * w1[r]
+                if r <= i < nx - r:
+                    continue
+                d = d_flat[o + i * ny:o + (i + 1) * ny]
+                _scaled(d, s_flat[o + i * ny:o + (i + 1) * ny], w1[r])
                 for j in range(-r, 0):
                     lo, hi = _extend(i + j, nx, False), _extend(i - j, nx, False)
-                    wj = w1[r + j]
-                    for c in range(ny):
-                        dst[k, i, c] += (src[k, lo, c] + src[k, hi, c]) * wj
+                    _add_pair(d, s_flat[o + lo * ny:o + (lo + 1) * ny],
+                              s_flat[o + hi * ny:o + (hi + 1) * ny], w1[r + j])
         src, dst = dst, src
     if w2.size:
+        # y: mirrored; the whole array as one line (f - r .. f + r), then the columns near a
+        # wall, whose neighbours on that line belong to other rows, again
         r = w2.size // 2
-        ext = np.empty(ny + 2 * r, dtype=np.int64)
-        for c in range(ny + 2 * r):
-            ext[c] = _extend(c - r, ny, False)
-        line = np.empty(ny + 2 * r)
-        for k in range(n_k):
-            for i in range(nx):
-                for c in range(ny + 2 * r):
-                    line[c] = src[k, i, ext[c]]
-                for c in range(ny):
-                    dst[k, i, c] = line[c + r] * w2[r]
-                for j in range(-r, 0):
-                    wj = w2[r + j]
-                    for c in range(ny):
-                        dst[k, i, c] += (line[c + r + j] + line[c + r - j]) * wj
+        s_flat, d_flat = src.reshape(-1), dst.reshape(-1)
+        n = s_flat.shape[0]
+        _scaled(d_flat, s_flat, w2[r])
+        for j in range(-r, 0):
+            if n + 2 * j > 0:
+                _add_pair(d_flat[-j:n + j], s_flat[:n + 2 * j], s_flat[-2 * j:], w2[r + j])
+        edge = np.empty(ny, dtype=np.int64)
+        n_edge = 0
+        for c in range(ny):
+            if c < r or c >= ny - r:
+                edge[n_edge] = c
+                n_edge += 1
+        e_lo = np.empty((r, n_edge), dtype=np.int64)
+        e_hi = np.empty((r, n_edge), dtype=np.int64)
+        for jj in range(r):                                # j = jj - r
+            for e in range(n_edge):
+                e_lo[jj, e] = _extend(edge[e] + jj - r, ny, False)
+                e_hi[jj, e] = _extend(edge[e] - jj + r, ny, False)
+        for row in range(0, n, ny):
+            for e in range(n_edge):
+                c = edge[e]
+                acc = s_flat[row + c] * w2[r]
+                for jj in range(r):
+                    acc += (s_flat[row + e_lo[jj, e]] + s_flat[row + e_hi[jj, e]]) * w2[jj]
+                d_flat[row + c] = acc
         src, dst = dst, src
     return src
 
@@ -297,10 +344,14 @@ def _shift_into(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, 
     it = int(math.floor(st))
     ft = st - math.floor(st)
     pad = (padded.shape[1] - nx) // 2
+    # (the loops index rows taken as slices from 0 up: an index such as o - 1 + c may be
+    # negative for numba, whose check for it keeps a loop from being vectorized)
     for k in range(n_k):
         for i in range(nx):
+            row = padded[k, pad + i, pad:pad + ny]
+            src = p[k, i]
             for j in range(ny):
-                padded[k, pad + i, pad + j] = p[k, i, j]
+                row[j] = src[j]
     # a[c] = (1 - f_x) row0[c] + f_x row1[c] once per column c of the padded rows: the x shift
     # of column o + j is a0 of cell j and a1 of cell j + 1
     a = np.empty(ny + 1)
@@ -309,11 +360,16 @@ def _shift_into(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, 
         o = pad - iy[k]
         for i in range(nx):
             r0 = pad + i - ix[k]
+            row0 = padded[k, r0, o - 1:o + ny]
+            row1 = padded[k, r0 - 1, o - 1:o + ny]
             for c in range(ny + 1):
-                a[c] = gx * padded[k, r0, o - 1 + c] + fxk * padded[k, r0 - 1, o - 1 + c]
+                a[c] = gx * row0[c] + fxk * row1[c]
+            q_row = q[k, i]
             for j in range(ny):
                 # a0 = a[j + 1] (column o + j), a1 = a[j] (column o + j - 1)
-                q[k, i, j] = gy * a[j + 1] + fyk * a[j]
+                q_row[j] = gy * a[j + 1] + fyk * a[j]
+    plane = nx * ny
+    q_flat, out_flat = q.reshape(-1), out.reshape(-1)
     if ft == 0.0:
         for k in range(n_k):
             out[k] = q[(k - it) % n_k]
@@ -321,9 +377,11 @@ def _shift_into(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, 
         gt = 1.0 - ft
         for k in range(n_k):
             k0, k1 = (k - it) % n_k, (k - it - 1) % n_k
-            for i in range(nx):
-                for j in range(ny):
-                    out[k, i, j] = gt * q[k0, i, j] + ft * q[k1, i, j]
+            dst = out_flat[k * plane:(k + 1) * plane]
+            q0 = q_flat[k0 * plane:(k0 + 1) * plane]
+            q1 = q_flat[k1 * plane:(k1 + 1) * plane]
+            for f in range(plane):
+                dst[f] = gt * q0[f] + ft * q1[f]
 
 
 @njit
@@ -532,110 +590,124 @@ def _cell_maxima(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np.n
         return np.nan
     cc *= kappa
     ss *= kappa
-    first_i = first_j = 0
-    for i in range(nx):
-        for j in range(ny):
-            b = 0.0
-            for q in range(n_q):
-                # a margin far above the rounding of C cos - S sin (~1e-13 here)
-                r = math.sqrt(cc[q, i, j] ** 2 + ss[q, i, j] ** 2) * (1.0 + 1e-9) + 1e-9
-                bound[q, i, j] = r
-                b = max(b, r)
-            bound[n_q, i, j] = b
-            if b > bound[n_q, first_i, first_j]:
-                first_i, first_j = i, j
-    best = -np.inf
+    # the bounds sub-position by sub-position over contiguous planes, then their maximum
+    plane = nx * ny
+    cc_f, ss_f, bound_f = cc.reshape(-1), ss.reshape(-1), bound.reshape(-1)
+    top = bound_f[n_q * plane:]
+    top[:] = 0.0
+    for q in range(n_q):
+        c_q = cc_f[q * plane:(q + 1) * plane]
+        s_q = ss_f[q * plane:(q + 1) * plane]
+        b_q = bound_f[q * plane:(q + 1) * plane]
+        for f in range(plane):
+            # a margin far above the rounding of C cos - S sin (~1e-13 here)
+            r = math.sqrt(c_q[f] ** 2 + s_q[f] ** 2) * (1.0 + 1e-9) + 1e-9
+            b_q[f] = r
+            top[f] = max(top[f], r)
+    first = 0
+    for f in range(1, plane):
+        if top[f] > top[first]:
+            first = f
+    first_i, first_j = first // ny, first % ny
     computed[:] = False
     v = np.empty(n_k)
-    for pos in range(-1, nx * ny):
-        if pos < 0:
-            i, j = first_i, first_j                   # the most promising position first
-        else:
-            i, j = pos // ny, pos % ny
+    # the most promising position first, then the others in order
+    best = _position_maxima(first_i, first_j, -np.inf, low, cc, ss, cos_tk, sin_tk, bound,
+                            computed, cell_max, v)
+    for i in range(nx):
+        for j in range(ny):
             if computed[i, j] or bound[n_q, i, j] < best + low - 1e-6:
                 continue
-        computed[i, j] = True
-        v[:] = -np.inf
-        for q in range(n_q):
-            if bound[q, i, j] < best + low - 1e-6:
-                # this sub-position is clipped at every heading: whether a cell is clipped,
-                # and the maximum of one that is not, come from the other sub-positions
-                continue
-            c, s = cc[q, i, j], ss[q, i, j]
-            for t in range(n_t):
-                for k in range(n_k):
-                    # kappa cos(A + theta) = C cos theta - S sin theta (_log_likelihood)
-                    v[k] = max(v[k], c * cos_tk[t, k] - s * sin_tk[t, k])
-        for k in range(n_k):
-            cell_max[k, i, j] = v[k]
-            best = max(best, v[k])
+            best = _position_maxima(i, j, best, low, cc, ss, cos_tk, sin_tk, bound, computed,
+                                    cell_max, v)
+    return best
+
+
+@njit
+def _position_maxima(i: int, j: int, best: float, low: float, cc: np.ndarray, ss: np.ndarray,
+                     cos_tk: np.ndarray, sin_tk: np.ndarray, bound: np.ndarray,
+                     computed: np.ndarray, cell_max: np.ndarray, v: np.ndarray) -> float:
+    """:func:`_cell_maxima` at position (i, j): ``cell_max[:, i, j]``, marked ``computed``;
+    returns ``best`` updated (``v`` (K,) scratch)."""
+    n_q = cc.shape[0]
+    n_t, n_k = cos_tk.shape
+    computed[i, j] = True
+    v[:] = -np.inf
+    for q in range(n_q):
+        if bound[q, i, j] < best + low - 1e-6:
+            # this sub-position is clipped at every heading: whether a cell is clipped,
+            # and the maximum of one that is not, come from the other sub-positions
+            continue
+        c, s = cc[q, i, j], ss[q, i, j]
+        for t in range(n_t):
+            for k in range(n_k):
+                # kappa cos(A + theta) = C cos theta - S sin theta (_log_likelihood)
+                v[k] = max(v[k], c * cos_tk[t, k] - s * sin_tk[t, k])
+    for k in range(n_k):
+        cell_max[k, i, j] = v[k]
+        best = max(best, v[k])
     return best
 
 
 @njit
 def _unclipped_sub_poses(cc: np.ndarray, ss: np.ndarray, cos_th: np.ndarray,
                          sin_th: np.ndarray, computed: np.ndarray, cell_max: np.ndarray,
-                         best: float, low: float, cells: np.ndarray, vals: np.ndarray
-                         ) -> tuple[int, int]:
+                         best: float, low: float, cells: np.ndarray, vals: np.ndarray) -> int:
     """:func:`_unclipped` from :func:`_cell_maxima`'s results: the flat indices of the cells
     (C order of (K, nx, ny)) with a sub-pose value ``v = a - best > low`` into ``cells``, and
-    those ``v``, cell by cell, sub-poses in order (q, then t), into ``vals``.
+    every sub-pose value ``v = max(a - best, low)`` of each of those cells into ``vals``, cell
+    by cell (``n_sub = Q T`` each), sub-poses in order (q, then t).
+
+    The cells are listed position by position (the computed ones), heading by heading within
+    a position: each cell's likelihood is its own sum, so their order changes no value.
 
     Returns
     -------
-    int, int
-        How many cells, how many values.
+    int
+        How many cells.
     """
     n_q, nx, ny = cc.shape
     n_k, n_t = cos_th.shape
-    n_cells = m = 0
-    for k in range(n_k):
-        for i in range(nx):
-            for j in range(ny):
-                if not computed[i, j] or not max(cell_max[k, i, j] - best, low) > low:
+    n_sub = n_q * n_t
+    n_cells = 0
+    for i in range(nx):
+        for j in range(ny):
+            if not computed[i, j]:
+                continue
+            for k in range(n_k):
+                if not max(cell_max[k, i, j] - best, low) > low:
                     continue
                 cells[n_cells] = (k * nx + i) * ny + j
+                m = n_cells * n_sub
                 n_cells += 1
                 for q in range(n_q):
                     c, s = cc[q, i, j], ss[q, i, j]
                     for t in range(n_t):
-                        v = max(c * cos_th[k, t] - s * sin_th[k, t] - best, low)
-                        if v > low:
-                            vals[m] = v
-                            m += 1
-    return n_cells, m
+                        vals[m] = max(c * cos_th[k, t] - s * sin_th[k, t] - best, low)
+                        m += 1
+    return n_cells
 
 
 @njit
-def _posterior(cc: np.ndarray, ss: np.ndarray, cos_th: np.ndarray, sin_th: np.ndarray,
-               cells: np.ndarray, best: float, low: float, exp_low: float, exps: np.ndarray,
-               prior: np.ndarray, uniform: np.ndarray, floor_uniform: np.ndarray, floor: float,
-               evidence_min: float, lik: np.ndarray, out: np.ndarray) -> None:
+def _posterior(n_sub: int, cells: np.ndarray, low: float, exp_low: float, vals: np.ndarray,
+               exps: np.ndarray, prior: np.ndarray, uniform: np.ndarray,
+               floor_uniform: np.ndarray, floor: float, evidence_min: float, lik: np.ndarray,
+               out: np.ndarray) -> None:
     """The rest of :meth:`MarkovLocalizer.update` into ``out`` (K, nx, ny): the likelihood of
-    every cell (:func:`_sub_pose_sums`; ``lik`` (N,) scratch), ``p = lik prior``, restarted
-    from ``lik uniform`` when its sum is not above ``evidence_min`` (or not finite), scaled by
-    ``(1 - floor) / sum``, plus ``floor_uniform`` when ``floor > 0``."""
-    n_q, nx, ny = cc.shape
-    n_k, n_t = cos_th.shape
-    n_sub = n_q * n_t
+    every cell (:func:`_sub_pose_sums`: of the ``cells``, the sum of their ``n_sub`` sub-pose
+    terms, ``exps`` (the exps of ``vals``) where ``vals > low`` and ``exp_low`` where clipped;
+    ``lik`` (N,) scratch), ``p = lik prior``, restarted from ``lik uniform`` when its sum is
+    not above ``evidence_min`` (or not finite), scaled by ``(1 - floor) / sum``, plus
+    ``floor_uniform`` when ``floor > 0``."""
     const = exp_low                         # a cell with every sub-pose clipped
     for _ in range(1, n_sub):
         const += exp_low
     # lik (the cells with an unclipped sub-pose: _sub_pose_sums), then lik prior
-    m = 0
     for c_i in range(cells.shape[0]):
-        c = cells[c_i]
-        k, rest = c // (nx * ny), c % (nx * ny)
-        i, j = rest // ny, rest % ny
-        acc = 0.0
-        for q in range(n_q):
-            cq, sq = cc[q, i, j], ss[q, i, j]
-            for t in range(n_t):
-                e = exp_low
-                if max(cq * cos_th[k, t] - sq * sin_th[k, t] - best, low) > low:
-                    e = exps[m]
-                    m += 1
-                acc = e if q == 0 and t == 0 else acc + e
+        m = c_i * n_sub
+        acc = exps[m] if vals[m] > low else exp_low
+        for s in range(1, n_sub):
+            acc += exps[m + s] if vals[m + s] > low else exp_low
         lik[c_i] = acc
     flat = out.reshape(-1)
     n = flat.shape[0]
@@ -666,11 +738,11 @@ def _update_kernel(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np
                    sin_th: np.ndarray, low: float, exp_low: float, cc: np.ndarray,
                    ss: np.ndarray, bound: np.ndarray, computed: np.ndarray,
                    cell_max: np.ndarray, cells: np.ndarray, vals: np.ndarray,
-                   loops: np.ndarray, prior: np.ndarray, uniform: np.ndarray,
-                   floor_uniform: np.ndarray, floor: float, evidence_min: float,
-                   lik: np.ndarray, out: np.ndarray) -> bool:
+                   exps: np.ndarray, loops: np.ndarray, prior: np.ndarray,
+                   uniform: np.ndarray, floor_uniform: np.ndarray, floor: float,
+                   evidence_min: float, lik: np.ndarray, out: np.ndarray) -> bool:
     """The sensor update of :meth:`MarkovLocalizer.update` into ``out``: :func:`_cell_maxima`,
-    :func:`_unclipped_sub_poses`, their exps by numpy's own loop
+    :func:`_unclipped_sub_poses`, the exps of their values by numpy's own loop
     (:func:`cr_sim.core.ufunc_loops.exp_into`; ``loops`` its ``LOOPS``), :func:`_posterior`;
     the other arrays are their scratch. Returns False (``out`` untouched) when no bearing
     is finite (nothing seen)."""
@@ -678,9 +750,10 @@ def _update_kernel(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np
                         computed, cell_max)
     if math.isnan(best):
         return False
-    n_cells, n_vals = _unclipped_sub_poses(cc, ss, cos_th, sin_th, computed, cell_max, best,
-                                           low, cells, vals)
-    exp_into(loops, vals, vals, n_vals)
-    _posterior(cc, ss, cos_th, sin_th, cells[:n_cells], best, low, exp_low, vals[:n_vals],
-               prior, uniform, floor_uniform, floor, evidence_min, lik, out)
+    n_cells = _unclipped_sub_poses(cc, ss, cos_th, sin_th, computed, cell_max, best, low,
+                                   cells, vals)
+    n_sub = cc.shape[0] * cos_th.shape[1]
+    exp_into(loops, vals, exps, n_cells * n_sub)
+    _posterior(n_sub, cells[:n_cells], low, exp_low, vals, exps, prior, uniform,
+               floor_uniform, floor, evidence_min, lik, out)
     return True
