@@ -83,8 +83,12 @@ def worktree_build(name: str, rev: str, where: Path) -> Build:
                     str(where), rev], check=True, capture_output=True)
     src = where / 'src'
     paths = [str(p) for p in sorted(src.iterdir()) if p.is_dir()]
+    # none of this checkout's own packages (env.sh's build/ and install/): a package that
+    # the commit does not have must not be found here instead
+    inherited = [p for p in os.environ.get('PYTHONPATH', '').split(os.pathsep)
+                 if p and not Path(p).resolve().is_relative_to(ROOT)]
     env = dict(os.environ, CLIS_CONFIG_DIR=str(where / 'config'),
-               PYTHONPATH=os.pathsep.join(paths + [os.environ.get('PYTHONPATH', '')]))
+               PYTHONPATH=os.pathsep.join(paths + inherited))
     return Build(name, where, env)
 
 
