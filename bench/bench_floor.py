@@ -42,9 +42,11 @@ import tempfile
 import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_speedup import CONDITIONS as WORKLOAD  # noqa: E402
 from bench_speedup import ROOT, experiment, fmt, worktree_build  # noqa: E402
 
-CONDITIONS = ('innate', 'view', 'place', 'sync', 'async')
+#: The reproduction workload's conditions (bench_speedup's, bench_reproduction's).
+CONDITIONS = tuple(WORKLOAD.split(','))
 
 
 def _run(job: tuple[str, int, int]) -> tuple[str, int, float, float, int]:

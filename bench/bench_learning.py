@@ -1,6 +1,8 @@
 """CLIS cores: cost of one place-module localization update, of the learner per episode, and
 of headless episodes per condition (CPU time of this process: episodes per second on one
-core), with where the time of an Async episode goes.
+core), with where the time of an Async episode goes (a profile, which inflates the Python
+calls against the compiled kernels: their share without a profiler, and the bound it sets on
+the runner's speed, is ``bench/bench_floor.py``'s).
 
     python bench/bench_learning.py [--episodes 30] [--json FILE]
 
@@ -136,19 +138,9 @@ def main() -> int:
         print(f'  {100 * share:5.1f}%  {label}')
     rows.append({'measure': 'Async episode time: ' + ', '.join(
         f'{label} {100 * s:.0f}%' for label, s in shares.items()), 'value': '', 'goal': ''})
-    # the compiled localization kernels against the rest, per condition with a place module:
-    # what a runner with no other cost would gain at most (same results to the bit)
-    kernels = {}
-    for condition in ('place', 'sync', 'async'):
-        part = breakdown(condition=condition)
-        kernels[condition] = sum(v for k, v in part.items() if 'compiled kernel' in k)
-    ms = {c: v['ms_per_episode'] for c, v in per.items()}
-    floor_ms = sum(ms[c] * kernels.get(c, 0.0) for c in ms)
-    print('localization kernels: ' + ', '.join(f'{c} {100 * k:.0f}%' for c, k in kernels.items())
-          + f'; the five conditions with only the kernels left: {sum(ms.values()) / floor_ms:.1f}x'
-          ' faster at most')
+    # (the kernels' share without a profiler, and what it bounds: bench/bench_floor.py)
     if args.json:
-        Path(args.json).write_text(json.dumps({'kernel_share': kernels,
+        Path(args.json).write_text(json.dumps({
             'localization_ms': loc_ms, 'episodes': per, 'async_breakdown': shares,
             'reproduction_upper_bound_min': total_s / 60, 'rows': rows}, indent=2))
     return 0
