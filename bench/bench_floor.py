@@ -36,14 +36,13 @@ import multiprocessing as mp
 import os
 from pathlib import Path
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_speedup import CONDITIONS as WORKLOAD  # noqa: E402
-from bench_speedup import ROOT, experiment, fmt, worktree_build  # noqa: E402
+from bench_speedup import experiment, fmt, remove_worktree, worktree_build  # noqa: E402
 
 #: The reproduction workload's conditions (bench_speedup's, bench_reproduction's).
 CONDITIONS = tuple(WORKLOAD.split(','))
@@ -95,6 +94,7 @@ def main() -> int:
     base_cpu = None
     if args.base:
         tmp = Path(tempfile.mkdtemp(prefix='bench_floor_'))
+        base = None
         try:
             base = worktree_build(f'base {args.base}', args.base, tmp / 'worktree')
             experiment(base, tmp / 'warm', 1, 2, 1, 'async')      # kernels compiled or loaded
@@ -103,8 +103,7 @@ def main() -> int:
                                              args.workers)
             print(f'  {fmt(base_wall)} wall, {fmt(base_cpu)} CPU', flush=True)
         finally:
-            subprocess.run(['git', '-C', str(ROOT), 'worktree', 'remove', '--force',
-                            str(tmp / 'worktree')], capture_output=True)
+            remove_worktree(base)
             shutil.rmtree(tmp, ignore_errors=True)
     jobs = [(c, s, args.episodes) for c in reversed(CONDITIONS) for s in range(args.seeds)]
     print(f'{len(jobs)} runs ({", ".join(CONDITIONS)} x {args.seeds} seeds x {args.episodes} '

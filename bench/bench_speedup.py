@@ -92,6 +92,13 @@ def worktree_build(name: str, rev: str, where: Path) -> Build:
     return Build(name, where, env)
 
 
+def remove_worktree(build: Build | None) -> None:
+    """Remove the worktree of a build made by :func:`worktree_build` (not this checkout)."""
+    if build is not None and build.root != ROOT:
+        subprocess.run(['git', '-C', str(ROOT), 'worktree', 'remove', '--force',
+                        str(build.root)], capture_output=True)
+
+
 def children_cpu() -> float:
     u = resource.getrusage(resource.RUSAGE_CHILDREN)
     return u.ru_utime + u.ru_stime
@@ -184,9 +191,7 @@ def main() -> int:
                               keep / 'exp_new' / 'episodes.csv')
     finally:
         for b in (base, new):
-            if b is not None and b.root != ROOT:
-                subprocess.run(['git', '-C', str(ROOT), 'worktree', 'remove', '--force',
-                                str(b.root)], capture_output=True)
+            remove_worktree(b)
         if args.keep is None:
             shutil.rmtree(tmp, ignore_errors=True)
     (wb, cb), (wn, cn) = times[base.name], times['this checkout']
