@@ -2,6 +2,7 @@
 #   make run    set up, then run the main job on the simulator
 #   make test   set up, then lint and run the test suite
 #   make bench  set up, then run the benchmarks (results in docs/benchmarks.md)
+#   make test-cpus  the bit-for-bit tests under each CPU's BLAS, numpy and numba kernels
 #   make reproduce  the paper preset's claims table of docs/results.md (10 seeds x 1000 episodes)
 #   make reproduce-improved  the improved preset's claims table and its ablation
 SHELL := /bin/bash
@@ -25,9 +26,9 @@ RECORD ?= bags/run-$(shell date +%Y%m%d-%H%M%S)
 REPRO_SEEDS ?= 10
 REPRO_EPISODES ?= 1000
 
-.PHONY: help setup run test lint bench clean reproduce reproduce-improved
+.PHONY: help setup run test test-cpus lint bench clean reproduce reproduce-improved
 help:
-	@sed -n '2,6p' Makefile | sed 's/^# *//'
+	@sed -n '2,7p' Makefile | sed 's/^# *//'
 
 setup: $(VENV)/.stamp install/.stamp test/foxglove_reader/.stamp $(VENV)/.gym.stamp
 
@@ -73,7 +74,9 @@ $(FOX)/.stamp: $(FOX)/package.json $(FOX)/package-lock.json
 
 # The main job on the simulator: check the ROS setup, then the CLIS node graph (simulator,
 # innate/view/place modules, arbiter, learner as processes) learning live in the Async
-# condition for 5 minutes, with a summary and the learning curve (OUT/curve.png); the run is
+# condition for 5 minutes with the improved preset (the one that learns; RUN_ARGS='--preset
+# paper' for the paper's rules as printed, whose values diverge: the run says so), with a
+# summary and the learning curve (OUT/curve.png); the run is
 # recorded as a bag in bags/ (clis bag info, clis replay, clis learn).
 # The headless experiment is one command away: clis experiment --help.
 run: setup
@@ -91,11 +94,17 @@ TEST_WORKERS ?= 2
 test: lint
 	@$(ENV) && python -m pytest -n $(TEST_WORKERS) --dist loadscope $(PYTEST_ARGS)
 
+# The tests that pin results bit for bit (marker bits), once per BLAS kernel set, numpy
+# dispatch level and numba CPU users' machines pick: one line each (tools/cpu_check.py). Run it
+# before a change that touches arithmetic.
+test-cpus: setup
+	@$(ENV) && python tools/cpu_check.py $(CPU_ARGS)
+
 bench: setup
 	@$(ENV) && python bench/run_all.py
 
 reproduce: setup
-	@$(ENV) && clis experiment --conditions innate,view,place,sync,async \
+	@$(ENV) && clis experiment --preset paper --conditions innate,view,place,sync,async \
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --eval-episodes 5 --out results/paper --resume
 	@$(ENV) && python -m clis_app.claims results/paper
 

@@ -34,7 +34,8 @@ def graph_rate(episodes: int, out: Path) -> dict:
     from clis_app.core.bag import bag_info
     bag = out / 'graph'
     t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'run', '--condition',
+    proc = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'run', '--preset', 'paper',
+                           '--condition',
                            'async', '--episodes', str(episodes), '--quiet', '--out',
                            str(out / 'run'), '--record', str(bag)], capture_output=True,
                           text=True, timeout=1800)

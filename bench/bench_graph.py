@@ -99,7 +99,8 @@ def measure(seconds: float, single: bool, executor: str = 'lean',
     from sensor_msgs.msg import JointState
 
     out = Path(tempfile.mkdtemp(prefix='bench_graph_'))
-    cmd = [sys.executable, '-m', 'clis_app.cli', 'run', '--condition', 'async',
+    cmd = [sys.executable, '-m', 'clis_app.cli', 'run', '--preset', 'paper',
+           '--condition', 'async',
            '--episodes', '100000', '--out', str(out), '--quiet']
     if single:
         cmd.append('--single-process')

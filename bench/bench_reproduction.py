@@ -36,7 +36,7 @@ def main() -> int:
     args = ap.parse_args()
     if args.out.exists():
         shutil.rmtree(args.out)
-    cmd = [sys.executable, '-m', 'clis_app.cli', 'experiment',
+    cmd = [sys.executable, '-m', 'clis_app.cli', 'experiment', '--preset', 'paper',
            '--conditions', 'innate,view,place,sync,async', '--episodes', str(args.episodes),
            '--seeds', str(args.seeds), '--workers', str(args.workers), '--out', str(args.out),
            '--eval-every', '0', '--quiet']   # the reproduction workload: no periodic evaluation

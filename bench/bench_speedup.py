@@ -68,6 +68,10 @@ class Build:
         self.name, self.root, self.env = name, root, env
         app = root / 'src' / 'clis_app' / 'clis_app' / 'cli.py'
         self.cli = 'clis_app.cli' if app.is_file() else 'clis_learner.cli'
+        # the workload is the paper preset's: a build whose default is another says so
+        config = root / 'src' / 'clis_learner' / 'clis_learner' / 'core' / 'config.py'
+        self.paper = (['--preset', 'paper'] if config.is_file()
+                      and 'DEFAULT_PRESET' in config.read_text() else [])
 
     def run(self, args: list[str], **kw) -> subprocess.CompletedProcess:
         return subprocess.run([sys.executable, *args], env=self.env, cwd=self.root, **kw)
@@ -111,7 +115,7 @@ def experiment(build: Build, out: Path, seeds: int, episodes: int, workers: int,
         shutil.rmtree(out)
     cmd = ['-m', build.cli, 'experiment', '--conditions', conditions, '--episodes',
            str(episodes), '--seeds', str(seeds), '--workers', str(workers), '--out', str(out),
-           '--eval-every', '0', '--block', str(min(50, episodes)), '--quiet']
+           '--eval-every', '0', '--block', str(min(50, episodes)), '--quiet', *build.paper]
     cpu0, t0 = children_cpu(), time.monotonic()
     proc = build.run(cmd, capture_output=True, text=True)
     wall, cpu = time.monotonic() - t0, children_cpu() - cpu0

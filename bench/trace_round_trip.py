@@ -41,7 +41,8 @@ def run(seconds: float, warmup: float, single: bool, speed: float, params: list[
         out: Path, sched: list[str], extra_args: list[str]) -> Path:
     trace = out / 'trace'
     env = dict(os.environ, CLIS_TRACE=str(trace))
-    cmd = [sys.executable, '-m', 'clis_app.cli', 'run', '--condition', 'async',
+    cmd = [sys.executable, '-m', 'clis_app.cli', 'run', '--preset', 'paper',
+           '--condition', 'async',
            '--episodes', '100000', '--out', str(out / 'run'), '--quiet']
     if single:
         cmd.append('--single-process')

@@ -28,6 +28,9 @@ from cr_sim.core.params import config_dir
 import numpy as np
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 # ------------------------------------------------------------------------------ retrace
 
 

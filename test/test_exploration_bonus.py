@@ -15,6 +15,9 @@ from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 KAPPA = 0.5
 
 

@@ -13,6 +13,9 @@ import textwrap
 
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 REPO = Path(__file__).resolve().parent.parent
 PLUGIN = REPO / 'src' / 'cr_sim' / 'cr_sim' / 'gym_plugin.py'
 

@@ -16,6 +16,9 @@ from clis_modules.core.value import LinearValue
 import numpy as np
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 LANDMARKS = np.array([[1.5, 0.75], [-0.75, 1.5], [-1.5, -0.75], [0.75, -1.5]])
 DT = 0.05
 

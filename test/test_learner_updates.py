@@ -27,6 +27,9 @@ from clis_learner.core.updates import (
 import numpy as np
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 # ------------------------------------------------------------------------------ resampling
 
 def cubic(t: np.ndarray) -> np.ndarray:

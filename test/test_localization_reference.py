@@ -17,6 +17,10 @@ from cr_sim.core.arena import load_arena
 from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
+import pytest
+
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
 
 PROPERTY = settings(max_examples=60, deadline=None)
 

@@ -24,6 +24,9 @@ from cr_sim.core.robot import load_robot_params
 import numpy as np
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 DT = 0.05
 T0 = 12.5                      # the sim clock runs on across episodes: an episode starts late
 SEED = 3

@@ -14,6 +14,9 @@ from cr_sim.core.starts import draw_start
 import numpy as np
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 WHEEL_BASE = load_sim_params().robot.wheel_base
 
 
@@ -84,14 +87,18 @@ def test_view_module_learns_to_reach_the_destination():
     step), random start poses (some near the goal) so that the first successes come early.
 
     Not the paper preset: under its literal step View alone learns in some seeds and
-    collapses in others (docs/results.md: 24 +- 15% after 1000 episodes), and which ones
-    depends on the CPU's last bits (seed 0 here gave 28 -> 8 successes per 100 episodes on
-    an AMD znver5, and learned on an Intel Xeon); with improved, seeds 0-5 on that AMD went
-    from 9-45 to 71-83 successes (gains 26-72). Fixed seed."""
-    rows = rollout('view', 0, 300, start='random', overrides=preset_overrides('improved'))
-    first = sum(r['reached'] for r in rows[:100])
-    last = sum(r['reached'] for r in rows[-100:])
-    assert last >= first + 15, (first, last)
+    collapses in others (docs/results.md: 24 +- 15% after 1000 episodes). Two seeds pooled: a
+    run's bits, and so how fast one seed learns, depend on the CPU's BLAS and numpy kernels
+    (docs/design.md, "Bit for bit: on which CPUs"; seed 0 went from 24 to 72 successes per 100
+    episodes under SkylakeX kernels and from 32 to 43 under Prescott's, seed 1 from 9 to 76 and
+    to 51); pooled, every kernel set of tools/cpu_check.py gains 78 or more of 200."""
+    first = last = 0
+    for seed in (0, 1):
+        rows = rollout('view', seed, 300, start='random',
+                       overrides=preset_overrides('improved'))
+        first += sum(r['reached'] for r in rows[:100])
+        last += sum(r['reached'] for r in rows[-100:])
+    assert last >= first + 30, (first, last)
 
 
 def test_place_selection_map_covers_the_free_arena():

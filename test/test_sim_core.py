@@ -32,6 +32,9 @@ import numpy as np
 import pytest
 import yaml
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 R = 0.11          # robot radius of config/robot.yaml (checked below)
 VMAX = 1.3
 DT = 0.05

@@ -8,6 +8,9 @@ from gymnasium.vector import SyncVectorEnv
 import numpy as np
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 
 def test_vector_env_equals_sync_vector_env_of_single_envs():
     n = 3

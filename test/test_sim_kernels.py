@@ -30,6 +30,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 
 @pytest.fixture(scope='module')
 def world():

@@ -11,6 +11,9 @@ from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest
 
+# results pinned bit for bit: tools/cpu_check.py runs these under each CPU kernel set
+pytestmark = pytest.mark.bits
+
 PERIODS = (0.25, 0.5, 1.2)
 DT = 0.05
 

@@ -297,3 +297,16 @@ def test_a_reader_that_stops_early_gets_no_traceback(tmp_path):
                           env={**os.environ, 'PYTHONPATH': os.pathsep.join(sys.path)})
     os.close(write)
     assert proc.returncode == 0 and 'Traceback' not in proc.stderr, proc.stderr
+
+
+def test_the_report_counts_the_runs_in_which_a_module_diverged():
+    rows = [dict(_summary('gen-a', c, s, 20), diverged={})
+            for c in ('innate', 'view', 'async') for s in range(3)]
+    rows[-1]['diverged'] = {'view': 18}
+    old = [_summary('gen-b', c, 0, 20) for c in ('innate', 'view', 'async')]   # no record
+    out = study_report.report(rows + old)
+    d = out['numbers']['groups'][0]['diverged']
+    assert (d['runs'], d['recorded'], d['diverged']) == (12, 9, 1)
+    assert d['conditions'] == {'innate': [0, 3], 'view': [0, 3], 'async': [1, 3]}
+    assert '| improved | wander | 12 | 9 | 1 | async 1/3 |' in out['markdown']
+    assert '## Divergence' in out['markdown']

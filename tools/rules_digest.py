@@ -33,8 +33,9 @@ REPO = Path(__file__).resolve().parent.parent
 CONDITIONS = ('async', 'sync')
 #: The options that give the rules of before the literal paper preset (commit 7597987).
 BEFORE_LITERAL = {'learner.policy_step': 'dimensionless', 'learner.behaviour_state': 'held'}
-#: Diagnostics added to the rows since 7597987, left out of the digest.
-LATER_COLUMNS = ('grow_share_', 'c_max_')
+#: Columns added to the rows since 7597987 (diagnostics, the divergence guard's), left out of
+#: the digest.
+LATER_COLUMNS = ('grow_share_', 'c_max_', 'diverged')
 
 
 def digest(condition: str, overrides: dict, run_dir: str) -> str:

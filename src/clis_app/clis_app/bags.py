@@ -30,6 +30,7 @@ EXIT_OK, EXIT_DAMAGED, EXIT_USAGE = 0, 1, 2
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from clis_learner.core.config import PRESET_NAMES
     fmt = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser('record', help='record topics of the graph into a bag (MCAP)',
                        description=__doc__, formatter_class=fmt, epilog="""examples:
@@ -73,6 +74,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--condition', help="the modules (default: the bag's, as recorded by "
                    'clis run, else those whose proposals it holds)')
     p.add_argument('--resume', type=Path, help='start from this checkpoint')
+    p.add_argument('--preset', default=None, choices=PRESET_NAMES(),
+                   help="parameter preset, as clis run --preset (default: the bag's run's, "
+                        'found by the parameter hash the bag records, else improved)')
     p.add_argument('--params', type=Path, action='append', default=[], metavar='FILE',
                    help='ROS parameter file overriding config/clis.yaml (as given to clis run)')
     p.add_argument('--arena', default=None, help="arena file (default: the bag's, else "
@@ -168,15 +172,27 @@ def _condition_of(bag: Any, names: set[str]) -> str | None:
 
 def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
                resume: Path | None = None, params_files: list[Path] | None = None,
-               arena: str | None = None, namespace: str = '/', say=print) -> dict[str, Any]:
+               arena: str | None = None, namespace: str = '/', say=print,
+               preset: str | None = None) -> dict[str, Any]:
     """Learn from the episodes of ``bags`` in order; write the checkpoint ``out``.
+
+    The parameters are config/clis.yaml with ``preset``'s file and ``params_files``, as ``clis
+    run`` gives them; ``preset`` None: the preset whose parameters have the hash the first bag
+    records (what its run used), else the default preset.
 
     Returns a summary: ``{'episodes': learned, 'skipped': not learned, 'version': ...,
     'condition': ..., 'damaged': [messages]}``. Raises ValueError (bad input) or
     :class:`~clis_app.core.bag.BagError` (a bag that cannot be opened).
     """
     from clis_learner.core.checkpoint import load_checkpoint, save_checkpoint
-    from clis_learner.core.config import ClisParams, load_clis_params, params_hash
+    from clis_learner.core.config import (
+        DEFAULT_PRESET,
+        PRESET_NAMES,
+        ClisParams,
+        load_clis_params,
+        params_hash,
+        preset_overrides,
+    )
     from clis_learner.core.stream import EpisodeStream
     from clis_modules.core.modules import arena_map, make_modules
     from clis_modules.core.plugin import parse_condition
@@ -193,27 +209,33 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
         raise ValueError(f'give --condition (TIMING:MODULE+... or innate, view, place, sync, '
                          f'async): {bags[0]} does not say')
     parse_condition(condition)                   # raises naming the form
-    overrides: dict[str, Any] = {}
+    given: dict[str, Any] = {}
     # the sections of the CLIS parameters (the fixed ones and the module instances)
     sections = set(ClisParams.__dataclass_fields__) | set(
         ros_parameters(config_dir() / 'clis.yaml', '/**'))
     for f in params_files or []:
         values = ros_parameters(f, '/**')
-        overrides.update({k: v for k, v in values.items() if k in sections})
-    clis = load_clis_params(overrides=overrides or None)
+        given.update({k: v for k, v in values.items() if k in sections})
+    recorded = first.custom_data.get('params_hash')
+
+    def with_preset(name: str) -> ClisParams:
+        return load_clis_params(overrides={**preset_overrides(name), **given} or None)
+    if preset is None:                        # the bag's run's, else the default
+        preset = next((n for n in PRESET_NAMES() if recorded
+                       and params_hash(with_preset(n)) == recorded), DEFAULT_PRESET)
+    clis = with_preset(preset)
     arena = arena if arena is not None else first.custom_data.get('arena_file', '')
     modules = make_modules(clis, condition, *arena_map(load_arena(arena or None)))
     hash_ = params_hash(clis)
-    recorded = first.custom_data.get('params_hash')
     if recorded and recorded != hash_:
         say(f'clis learn: warning: {bags[0]} was recorded with CLIS parameters {recorded}, '
-            f"these are {hash_} (give the run's --params files): the parameters will differ "
-            "from the run's")
+            f"these are {hash_} (give the run's --preset and --params files): the parameters "
+            "will differ from the run's")
     version = 0
     if resume is not None:
         version = int(load_checkpoint(resume, modules, hash_)['extra'].get('version', 0))
     summary: dict[str, Any] = {'episodes': 0, 'skipped': 0, 'condition': condition,
-                               'damaged': []}
+                               'preset': preset, 'damaged': []}
     seed = int(first.custom_data.get('seed', 0) or 0)
     last_episode = -1
     for bag, reader in zip(bags, readers):
@@ -264,11 +286,12 @@ def _learn(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     try:
         s = learn_bags(args.bags, args.out, args.condition, args.resume, args.params,
-                       args.arena, args.namespace, say)
+                       args.arena, args.namespace, say, args.preset)
     except (BagError, CheckpointError, ConfigError, ValueError) as exc:
         print(f'clis learn: {exc}', file=sys.stderr)
         return EXIT_USAGE
-    print(f'clis learn: {s["episodes"]} episodes learned ({s["condition"]}; '
+    print(f'clis learn: {s["episodes"]} episodes learned ({s["condition"]}, '
+          f'{s["preset"]} preset; '
           f'{s["skipped"]} not learned), version {s["version"]}, in '
           f'{time.monotonic() - t0:.1f} s: {args.out}', file=sys.stderr)
     return EXIT_DAMAGED if s['damaged'] else EXIT_OK

@@ -13,7 +13,11 @@ A run's results are the same whichever backend ran it. At the end the runs are m
 
 A condition is a name (``innate``, ``view``, ``place``, ``sync``, ``async``) optionally followed
 by parameter overrides of ``config/clis.yaml``, ``@key=value`` each, so that variants run side by
-side on the same seeds: ``async@common.beta=200`` or ``sync@learner.resample=zoh``.
+side on the same seeds: ``async@common.beta=200`` or ``sync@learner.resample=zoh``. Every
+condition runs with ``--preset`` (default ``improved``, the preset that learns; ``paper`` is the
+rules exactly as printed, whose values diverge in most runs: the divergence guard,
+:mod:`clis_learner.core.guard`, says so in the progress line, the summary and each run's
+``diverged`` field).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import sys
 import time
 from typing import Any
 
+from clis_learner.core.config import DEFAULT_PRESET
 from clis_modules.core.plugin import parse_condition as parse_modules
 from cr_sim.core.arena import load_arena
 from cr_sim.core.starts import draw_start
@@ -73,7 +78,9 @@ def longest_first(specs: list[JobSpec]) -> list[JobSpec]:
 EPILOG = """\
 examples:
   clis experiment --conditions innate,view,place,sync,async --episodes 1000 --seeds 10 \\
-      --out results/paper
+      --out results/improved                                  # the improved preset (default)
+  clis experiment --preset paper --conditions innate,view,place,sync,async --episodes 1000 \\
+      --seeds 10 --out results/paper                          # the paper's rules as printed
   clis experiment --conditions async,async@common.beta=200 --episodes 300 --seeds 3 --out /tmp/b
   clis experiment --figures-only --out results/paper          # redraw from saved runs
   clis experiment --backend ray --conditions async --seeds 20 --out /tmp/r   # local Ray
@@ -120,9 +127,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help='every N learning episodes (and before the first), evaluate from each '
                         'start A-E with learning off: the Fig. 3a curve (paper Fig. 2 caption; '
                         '0 = off, Fig. 3a from the learning episodes)')
-    p.add_argument('--preset', default='paper', choices=presets(),
-                   help='parameter preset: config/clis.yaml (paper) with the '
-                        'overrides of config/clis_PRESET.yaml (improved: beyond the paper)')
+    p.add_argument('--preset', default=DEFAULT_PRESET, choices=presets(),
+                   help='parameter preset: config/clis.yaml with the overrides of '
+                        'config/clis_PRESET.yaml (default %(default)s: the one that learns, '
+                        'beyond the paper); paper = the rules exactly as printed, whose '
+                        'values diverge in most runs (docs/results.md)')
     p.add_argument('--ablation', action='store_true',
                    help='with --preset P: also Async with each change of P alone (on the '
                         'paper preset) and with all of them (P:async), on the same seeds')
@@ -207,9 +216,16 @@ class Progress:
         self.finished = 0
         self.note = ''
         self.tty = sys.stderr.isatty()
+        self.warnings: list[str] = []
 
     def update(self, job: int, episodes: int, note: str) -> None:
         self.done_eps[job] = episodes
+        if note.startswith('WARNING'):
+            # the divergence guard's report of a run: a line of its own, even --quiet
+            print(('\r' + ' ' * 160 + '\r' if self.tty else '') + note, file=sys.stderr,
+                  flush=True)
+            self.warnings.append(note)
+            return
         self.note = note
         self.show()
 
@@ -272,7 +288,8 @@ def main(args: argparse.Namespace) -> int:
     with_preset = [True] * len(conditions)         # the preset applies to the conditions given
     if args.ablation:
         if args.preset == 'paper':
-            return _fail('--ablation needs --preset (the changes to toggle)')
+            return _fail('--ablation toggles the changes of a preset beyond the paper: not '
+                         'with --preset paper (e.g. --preset improved, the default)')
         singles = [c for c in ablation_conditions(args.preset) if c not in conditions]
         conditions += singles                      # each change alone, on the paper preset
         with_preset += [False] * len(singles)
@@ -387,7 +404,21 @@ def _finish(out: Path, results: list[JobResult], wall: float | None) -> int:
     print(f'\nwrote {out}/episodes.csv, eval.csv, summary.json and figures{took}')
     for line in summary['table']:
         print(line)
+    for line in divergence_lines(summary):
+        print(line)
     return 0
+
+
+def divergence_lines(summary: dict) -> list[str]:
+    """What the divergence guard reported, per condition of a merged ``summary``."""
+    from clis_learner.core.guard import DOCS
+    gone = {label: c['diverged'] for label, c in summary['conditions'].items()
+            if c.get('diverged', {}).get('runs')}
+    if not gone:
+        return ['divergence guard: no module diverged in any run']
+    return [f'WARNING: {label}: a module diverged in {d["runs"]} of {d["of"]} runs ('
+            + ', '.join(f'{m} in {n}' for m, n in d['modules'].items()) + f'; {DOCS})'
+            for label, d in gone.items()]
 
 
 def _check_inputs(args: argparse.Namespace, common: dict, sim_overrides: dict) -> str:
@@ -610,6 +641,11 @@ def merge(results: list[JobResult], out: Path, wall_seconds: float | None) -> di
                                     .tolist() if runs[0].eval_curve else []),
             'seconds_per_run': float(np.mean([res.seconds for res in runs])),
             'final_diagnostics': _mean_dicts([res.final_diagnostics for res in runs]),
+            # the divergence guard (clis_learner.core.guard): runs in which a module diverged
+            'diverged': {'runs': sum(bool(res.diverged) for res in runs), 'of': len(runs),
+                         'modules': {m: sum(m in res.diverged for res in runs)
+                                     for m in runs[0].modules
+                                     if any(m in res.diverged for res in runs)}},
         }
         table.append(f'{label:28s} {len(runs):5d} {curves[:, 0].mean():13.1f} '
                      f'{curves[:, -1].mean():12.1f} {eval_success:12.2f} {eval_time:11.1f}')

@@ -360,6 +360,18 @@ def _run_title(result, what: str, window: int) -> str:
     return f'{label}: {what}, {n} episodes (moving average over {window})'
 
 
+def _mark_divergences(ax, rows: list[dict]) -> None:
+    """A dashed line at each episode where the divergence guard reported a module
+    (:mod:`clis_learner.core.guard`), labelled with the module."""
+    for k, row in enumerate(rows):
+        names = [m for m in str(row.get('diverged') or '').split('+') if m and m != 'nan']
+        if not names:
+            continue
+        ax.axvline(k + 1, color='tab:red', ls='--', lw=1.2)
+        ax.text(k + 1, 0.5, f' {"+".join(names)} diverged (episode {k + 1})', color='tab:red',
+                rotation=90, va='center', ha='right', fontsize=8)
+
+
 def run_curve(result, path: Path) -> None:
     """The learning of one run (``clis run``'s ``curve.png``), for any length from a few
     episodes: each episode's outcome (reached or not), its moving average
@@ -378,6 +390,7 @@ def run_curve(result, path: Path) -> None:
         rate = np.array(result.success_curve()) / result.block
         ax.plot(np.arange(1, n_blocks + 1) * result.block, rate, 's', color='tab:red', ms=7,
                 label=f'block of {result.block} episodes (at its last)')
+    _mark_divergences(ax, result.episodes)
     ax.set_xlim(0.5, n + 0.5)
     ax.set_ylim(-0.05, 1.05)
     ax.set_xlabel('episode')

@@ -10,8 +10,12 @@ real time (1: real time); after each episode it holds its clock until the learne
 from it (``node.wait_for_learner``), as the real robot wanders to its next start while the
 learner learns.
 
-While it runs, one line shows the learner's progress (from ``learner/progress``): learned
-episodes, successes in the last block, who acted, Pr(i | x_0), the real-time factor. At the end
+The parameters are config/clis.yaml with the ``--preset``'s file (default ``improved``, the
+preset that learns; ``paper``: the rules exactly as printed) and the ``--params`` files, in that
+order. While it runs, one line shows the learner's progress (from ``learner/progress``): learned
+episodes, successes in the last block, who acted, Pr(i | x_0), the real-time factor; a module
+whose values diverge (the learner's divergence guard, :mod:`clis_learner.core.guard`) is
+reported there at once, in a line of its own, in the summary and on ``curve.png``. At the end
 (N learned episodes, or Ctrl-C) every child is stopped cleanly, simulator first and learner
 last, and OUT gets the learning curve (``curve.csv``, ``curve.png``, from ``episodes.csv``).
 Each child's output goes to ``OUT/logs/NAME.log``.
@@ -52,6 +56,7 @@ import sys
 import time
 from typing import Any
 
+from clis_learner.core.config import DEFAULT_PRESET, PRESET_NAMES
 from clis_modules.core.plugin import parse_condition
 
 from clis_app.graph_plan import REALTIME_ABOVE, REALTIME_PRIORITY, plan_graph
@@ -62,6 +67,7 @@ __all__ = ['register', 'main']
 
 EPILOG = """examples:
   clis run --condition async --episodes 300                 # as fast as the graph keeps up
+  clis run --condition async --episodes 300 --preset paper  # the paper's rules as printed
   clis run --condition view --episodes 50 --speed 5 --out results/run/view
   clis run --condition async --episodes 300 --resume results/run/async/checkpoint.npz
   clis run --condition sync --episodes 100 --params my_overrides.yaml
@@ -96,12 +102,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                    default=argparse.SUPPRESS,
                    instead='--speed 1 (--realtime PRIO is the SCHED_FIFO priority)')
     p.add_argument('--seed', type=int, default=0, help='seed of the run (default 0)')
+    p.add_argument('--preset', default=DEFAULT_PRESET, choices=PRESET_NAMES(),
+                   help='parameter preset, as clis experiment --preset: config/clis.yaml with '
+                        'config/clis_PRESET.yaml given to every node before the --params files '
+                        '(default %(default)s: the one that learns); paper = the rules exactly '
+                        'as printed, whose values diverge in most runs (docs/results.md)')
     p.add_argument('--params', type=Path, action='append', default=[], metavar='FILE',
                    help='a ROS parameter file given to every node (--params-file), e.g. to '
                         'override config/clis.yaml keys under "/**: ros__parameters:"')
     p.add_argument('--resume', type=Path, help='start the learner from this checkpoint')
-    p.add_argument('--out', type=Path, help='output folder (default results/run/CONDITION-'
-                   'seedS-DATE)')
+    p.add_argument('--out', type=Path, help='output folder (default results/run/PRESET-'
+                   'CONDITION-seedS-DATE)')
     p.add_argument('--arena', type=str, default='', help='arena file (default config/arena.yaml)')
     p.add_argument('--robot', choices=('sim', 'bridge'), default='sim',
                    help="the robot interface: the simulator (default) or the real robot's "
@@ -208,6 +219,10 @@ def _check_args(args: argparse.Namespace) -> str | None:
     except (ConfigError, OSError) as exc:
         return f'--arena {args.arena}: {_strip(exc, args.arena)}'
     clis_keys: dict[str, Any] = {}
+    from clis_learner.core.config import preset_path
+    preset = preset_path(args.preset)           # checked by argparse's choices
+    if preset is not None and preset not in args.params:
+        args.params.insert(0, preset)           # the --params files override the preset
     for f in args.params:
         try:
             flat = check_params_file(f)
@@ -233,8 +248,8 @@ def _check_args(args: argparse.Namespace) -> str | None:
                                params_hash(clis))
     except CheckpointError as exc:
         return f'--resume {args.resume}: {_strip(exc, args.resume)}' + (
-            f' (the learner of --condition {args.condition} with these parameters cannot '
-            'start from it)' if args.resume.is_file() else '')
+            f' (the learner of --condition {args.condition} with these parameters, --preset '
+            f'{args.preset}, cannot start from it)' if args.resume.is_file() else '')
     extra = meta.get('extra', {})
     for key in ('condition', 'seed'):
         if key in extra and extra[key] != getattr(args, key):
@@ -359,7 +374,7 @@ def main(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     if args.out is None:
         slug = args.condition.replace(':', '-').replace('+', '_')
-        args.out = Path('results/run') / (f'{slug}-seed{args.seed}-'
+        args.out = Path('results/run') / (f'{args.preset}-{slug}-seed{args.seed}-'
                                           f'{time.strftime("%Y%m%d-%H%M%S")}')
     out = args.out.resolve()
     if (out / 'episodes.csv').is_file() and args.resume is None:
@@ -399,7 +414,8 @@ def main(args: argparse.Namespace) -> int:
         say(f"clis run: {n} rows of episodes.csv after the checkpoint's episode "
             f'{args.first_episode - 1} dropped (run again)')
 
-    say(f'clis run: {args.condition}, seed {args.seed}, {args.episodes} episodes, '
+    say(f'clis run: {args.condition}, {args.preset} preset, seed {args.seed}, '
+        f'{args.episodes} episodes, '
         + (f'from episode {args.first_episode}, ' if args.first_episode > 1 else '')
         + (f'robot bridge ({args.device}), ' if args.robot == 'bridge' else '') +
         f'speed {"max" if args.speed == 0 else f"x{args.speed:g}"}, ROS_DOMAIN_ID '
@@ -409,8 +425,8 @@ def main(args: argparse.Namespace) -> int:
         code = run_single(plan, args, out, say)
     else:
         code = run_processes(plan, args, out, say, tty)
-    curve = write_curve(out, args.block)
+    curve = write_curve(out, args.block, args.preset)
     if curve is not None:
-        say(summary(out, args.block))
+        say(summary(out, args.block, args.preset))
         say(f'learning curve: {curve[0]}, {curve[1]}')
     return code

@@ -11,6 +11,8 @@ import math
 import sys
 import time
 
+from clis_learner.core.guard import Divergence
+
 __all__ = ['Monitor', 'ProgressView']
 
 
@@ -70,6 +72,8 @@ class ProgressView:
         self.t_start = time.monotonic()
         self.shown = 0
         self.learned = 0
+        #: what the divergence guard reported so far
+        self.diverged: list[Divergence] = []
 
     @property
     def out_of_time(self) -> bool:
@@ -80,9 +84,15 @@ class ProgressView:
         is reached)."""
         if len(rows) <= self.shown:
             return self.out_of_time
-        self.shown = len(rows)
+        new, self.shown = rows[self.shown:], len(rows)
         done = [r for r in rows if r.get('learned') == '1']
         self.learned = len(done)
+        for r in new:
+            # the divergence guard (clis_learner.core.guard): a line of its own, even --quiet
+            for d in Divergence.from_row(r, int(float(r.get('version', 0) or 0))):
+                self.diverged.append(d)
+                print(('\r\033[K' if self.tty else '') + f'WARNING: {d.message()}',
+                      file=sys.stderr, flush=True)
         if not self.quiet:
             line = self.line(rows[-1], done, time.monotonic() - self.t_start)
             print(('\r\033[K' + line[:200]) if self.tty else line, end='' if self.tty else '\n',
@@ -98,8 +108,9 @@ class ProgressView:
         rtf = float(last.get('t_end', 'nan')) / wall if wall > 0 else math.nan
         eta = wall * (self.target - self.learned) / self.learned if self.learned else math.nan
         what = 'reached' if last.get('reached') == '1' else last.get('event', '?')
-        return (f'episode {self.learned}/{self.target} | {succ}/{len(recent)} reached in the '
-                f'last {len(recent)} | ep {last.get("episode")}: {what} '
+        gone = ''.join(f' | {d.module} DIVERGED at {d.episode}' for d in self.diverged)
+        return (f'episode {self.learned}/{self.target}{gone} | {succ}/{len(recent)} reached in '
+                f'the last {len(recent)} | ep {last.get("episode")}: {what} '
                 f'{float(last.get("duration", "nan")):.1f} s, acted {last.get("behaviour", "-")}'
                 f'{" | P(i|x0) " + probs if probs else ""} | x{rtf:.0f} real time | '
                 f'{wall / 60:.1f} min, ETA {eta / 60:.1f} min')

@@ -12,14 +12,16 @@ import os
 from pathlib import Path
 from typing import Any
 
+from clis_learner.core.guard import Divergence
 import numpy as np
 
-__all__ = ['summary', 'write_curve']
+__all__ = ['divergences', 'summary', 'write_curve']
 
 
-def write_curve(out: Path, block: int) -> tuple[Path, Path] | None:
+def write_curve(out: Path, block: int, preset: str = '') -> tuple[Path, Path] | None:
     """``OUT/curve.csv`` and ``OUT/curve.png`` from ``OUT/episodes.csv`` (learned episodes):
-    successes per block and the share of time each module acted. None without episodes."""
+    successes per block and the share of time each module acted, the divergences the guard
+    reported marked; the title names ``preset``. None without episodes."""
     from clis_app import figures
     from clis_app.core.runner import JobResult
     path = out / 'episodes.csv'
@@ -31,7 +33,9 @@ def write_curve(out: Path, block: int) -> tuple[Path, Path] | None:
         return None
     names = [k[len('share_'):] for k in rows[0] if k.startswith('share_')]
     block = max(1, min(block, len(rows)))
-    result = JobResult(spec={'label': str(rows[0].get('condition', 'graph'))}, modules=names,
+    condition = str(rows[0].get('condition', 'graph'))
+    label = f'{preset}:{condition}' if preset else condition
+    result = JobResult(spec={'label': label, 'preset': preset}, modules=names,
                        block=block, episodes=rows, evals=[], place_map=None, arena={},
                        seconds=0.0)
     successes = result.success_curve()
@@ -61,8 +65,20 @@ def _numbers(row: dict[str, str]) -> dict[str, Any]:
     return out
 
 
-def summary(out: Path, block: int) -> str:
-    """A few lines on the run from ``OUT/episodes.csv``: successes early and late, who acted."""
+def divergences(rows: list[dict[str, Any]]) -> list[Divergence]:
+    """What the divergence guard reported in the rows of ``episodes.csv``, in order (the
+    episode: the n-th learned one, as the guard counts)."""
+    out = []
+    learned = 0
+    for r in rows:
+        learned += str(r.get('learned', '1')) in ('1', '1.0')
+        out += Divergence.from_row(r, learned)
+    return out
+
+
+def summary(out: Path, block: int, preset: str = '') -> str:
+    """A few lines on the run from ``OUT/episodes.csv``: successes early and late, who acted,
+    and what the divergence guard reported."""
     with open(out / 'episodes.csv', newline='') as fh:
         rows = list(csv.DictReader(fh))
     n = len(rows)
@@ -73,7 +89,9 @@ def summary(out: Path, block: int) -> str:
     shares = ', '.join(f'{m} {np.mean([float(r[f"share_{m}"]) for r in rows[-k:]]):.0%}'
                        for m in names)
     lost = sum(r.get('complete', '1') == '0' for r in rows)
-    return (f'summary: {n} episodes learned; reached {first}/{k} in the first {k}, '
+    gone = ''.join(f'\nWARNING: {d.message()}' for d in divergences(rows))
+    return (f'summary{f" ({preset} preset)" if preset else ""}: {n} episodes learned; '
+            f'reached {first}/{k} in the first {k}, '
             f'{last}/{k} in the last {k}; who acted in the last {k}: {shares}'
             + (f'; WARNING: {lost} episodes lost reward messages (see logs/learner.log)'
-               if lost else ''))
+               if lost else '') + gone)

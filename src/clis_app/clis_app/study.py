@@ -456,7 +456,8 @@ def _job_specs(runs: list[Run], out: Path) -> list:
 
 def summarise(run: Run, result: Any, hidden: float) -> dict:
     """The summary of a finished run (what the report reads): its settings, the evaluation
-    curve, the final evaluated success (the last point) and each learned module alone."""
+    curve, the final evaluated success (the last point), each learned module alone, and the
+    modules the divergence guard reported."""
     final = result.eval_curve[-1]
     return {
         'format': SUMMARY_FORMAT, 'arena': run.arena, 'protocol': run.protocol,
@@ -466,6 +467,8 @@ def summarise(run: Run, result: Any, hidden: float) -> dict:
         'hidden_share': hidden,
         'final': {'episode': final['episode'], 'reached': final['reached'], 'n': final['n']},
         'eval_curve': result.eval_curve, 'solo': result.solo,
+        # the divergence guard's {module: episode} (clis_learner.core.guard)
+        'diverged': dict(getattr(result, 'diverged', {}) or {}),
         'seconds': round(float(result.seconds), 1)}
 
 

@@ -229,8 +229,41 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
             agg.setdefault('conditions', {})[c] = {'mean': m, 'half': h, 'layouts': n}
         numbers['groups'].append({'preset': preset, 'protocol': proto, 'conditions': conds,
                                   'layouts': cells, 'aggregate': agg,
-                                  'singles_from': borrowed[(preset, proto)]})
+                                  'singles_from': borrowed[(preset, proto)],
+                                  'diverged': divergence_counts(
+                                      [d for rows in groups[(preset, proto)].values()
+                                       for d in rows if d['preset'] == preset])})
     return {'markdown': _markdown(numbers), 'numbers': _finite(numbers)}
+
+
+def divergence_counts(summaries: list[dict]) -> dict:
+    """Of ``summaries``: how many record the divergence guard's result (``recorded``; a run
+    summarised before the guard existed does not), and per condition how many of those had a
+    module diverge (``{condition: [diverged, recorded]}``)."""
+    recorded = [d for d in summaries if 'diverged' in d]
+    by: dict[str, list[int]] = {}
+    for d in recorded:
+        n = by.setdefault(d['condition'], [0, 0])
+        n[0] += bool(d['diverged'])
+        n[1] += 1
+    return {'runs': len(summaries), 'recorded': len(recorded),
+            'diverged': sum(bool(d['diverged']) for d in recorded), 'conditions': by}
+
+
+def _divergence_lines(numbers: dict) -> list[str]:
+    """The report's section on the divergence guard (clis_learner.core.guard)."""
+    out = ['', '## Divergence', '',
+           'Runs in which the divergence guard reported a module (its value beyond 10 r_max / '
+           '(1 - gamma_i), or a non-finite update), of the runs whose summary records it; a run '
+           'summarised before the guard existed does not (docs/results.md#divergence).', '',
+           _row(['preset', 'protocol', 'runs', 'recorded', 'diverged', 'by condition']),
+           '|---|---|---|---|---|---|']
+    for g in numbers['groups']:
+        d = g.get('diverged') or {'runs': 0, 'recorded': 0, 'diverged': 0, 'conditions': {}}
+        by = ', '.join(f'{c} {n}/{k}' for c, (n, k) in d['conditions'].items() if n)
+        out.append(_row([g['preset'], g['protocol'], str(d['runs']), str(d['recorded']),
+                         str(d['diverged']) if d['recorded'] else '-', by or '-']))
+    return out
 
 
 def _finite(obj: Any) -> Any:
@@ -327,6 +360,7 @@ def _markdown(numbers: dict) -> str:
         cells = ([_pm(a.get('conditions', {}).get(k)) for k in conds]
                  + [_pm(a.get(k), True) + _mark(a.get(k)) for k, _ in here])
         out.append(_row([f'over {_layouts(a["n_layouts"], a["over"])}', '', ''] + cells))
+    out += _divergence_lines(numbers)
     return '\n'.join(out) + '\n'
 
 

@@ -19,9 +19,11 @@ the simulator's ``resume_state`` of the episode's end: where ``clis run --resume
 published on ``<module>/params`` (transient local, so a module that restarts gets them at once;
 ``version`` = episodes learned), and the row is published on ``~/progress``
 (diagnostic_msgs/DiagnosticArray, transient local: episode, reached, return, who acted,
-Pr(i|x_0), diagnostics). An episode whose start the learner did not see (it started late or
-was restarted), or that starts once ``learner_node.episodes`` are learned, is not learned; its
-progress says so (``learned: 0``). ``learner_node.resume`` starts from a checkpoint. The learner
+Pr(i|x_0), diagnostics; ``diverged`` names a module the divergence guard,
+:mod:`~clis_learner.core.guard`, reports at this episode, which the log says too, once). An
+episode whose start the learner did not see (it started late or was restarted), or that starts
+once ``learner_node.episodes`` are learned, is not learned; its progress says so
+(``learned: 0``). ``learner_node.resume`` starts from a checkpoint. The learner
 reports ready (progress of episode 0, which a simulator with ``node.wait_for_learner``
 waits for before the first episode) once DDS has found a publisher of every stream it
 reads, or after ``learner_node.connect_timeout`` s.
@@ -263,6 +265,8 @@ class LearnerNode(GraphNode):
                 "the behaviour's density at its latest decision, not at the learner's instant "
                 '(learner.behaviour_state = resampled needs observations that the module nodes '
                 'do not publish yet; column held_steps of episodes.csv)')
+        for d in closed.diverged:            # the divergence guard: once per module
+            self.get_logger().error(d.message())
         if closed.learned:
             if self.out is not None:
                 # the row first: stopped between the two, the checkpoint is the episode before

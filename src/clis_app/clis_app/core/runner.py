@@ -43,6 +43,7 @@ from typing import Any
 
 from clis_learner.core.checkpoint import save_checkpoint
 from clis_learner.core.config import ClisParams, load_clis_params, params_hash
+from clis_learner.core.guard import Divergence
 from clis_learner.core.stream import EpisodeStream
 from clis_modules.core.arbiter import Selector, selection_probs
 from clis_modules.core.decider import Decider, Percept
@@ -320,6 +321,9 @@ class JobResult:
     params_hash: str = ''
     eval_curve: list[dict] = field(default_factory=list)
     solo: dict = field(default_factory=dict)
+    #: ``{module: learned episode (from 1)}`` at which the divergence guard reported the
+    #: module (:mod:`clis_learner.core.guard`); empty when none diverged
+    diverged: dict = field(default_factory=dict)
 
     def table_episodes(self) -> list[dict]:
         """The learning episodes as ``episodes.csv`` shows them: numbered from 1, the n-th
@@ -388,6 +392,7 @@ def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -
                   sim_params.robot.wheel_base)
     base = {'label': spec.label, 'condition': spec.condition, 'seed': spec.seed}
     episodes, evals, eval_curve = [], [], []
+    diverged: dict[str, int] = {}
 
     def evaluate_now(learned: int) -> None:
         rows = evaluate(agent, arena, sim_params, spec.seed, learned, spec.eval_episodes)
@@ -402,6 +407,10 @@ def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -
         start, heading = draw_start(spec.train_start, arena, start_rng)
         row = run_episode(sim, agent, start, heading, learn=True)
         episodes.append({**base, 'phase': 'train', 'episode': ep, **row})
+        for d in Divergence.from_row(row, ep + 1):      # the guard: once per module
+            diverged[d.module] = d.episode
+            if progress is not None:
+                progress(ep + 1, f'WARNING: {spec.label} seed {spec.seed}: {d.message()}')
         if spec.eval_every > 0 and (ep + 1) % spec.eval_every == 0:
             evaluate_now(ep + 1)
         if progress is not None and ((ep + 1) % 10 == 0 or ep + 1 == spec.episodes):
@@ -431,7 +440,7 @@ def run_job(spec: JobSpec, progress: Callable[[int, str], None] | None = None) -
                      episodes=episodes, evals=evals, place_map=place_map,
                      arena=arena_dict(arena), seconds=time.perf_counter() - t0,
                      final_diagnostics=final, params_hash=params_hash(params),
-                     eval_curve=eval_curve, solo=solo)
+                     eval_curve=eval_curve, solo=solo, diverged=diverged)
 
 
 class _SwappedRng:

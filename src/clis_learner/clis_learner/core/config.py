@@ -34,7 +34,8 @@ from clis_learner.core.resample import RESAMPLE_METHODS
 from clis_learner.core.updates import POLICY_STEPS, POLICY_UPDATES, STEP_NORMS, VALUE_UPDATES
 
 __all__ = ['LearnerParams', 'ClisParams', 'load_clis_params', 'params_hash', 'CLIS_NODE',
-           'PRESET_NAMES', 'preset_overrides', 'preset_groups', 'PRESET_GROUPS',
+           'DEFAULT_PRESET', 'PRESET_NAMES', 'preset_path', 'preset_overrides',
+           'preset_groups', 'PRESET_GROUPS',
            'check_overrides', 'check_params_file']
 
 #: Node key of the parameter file: every node reads the same CLIS parameters.
@@ -105,6 +106,12 @@ PRESET_GROUPS: dict[str, tuple[str, ...]] = {
 }
 
 
+#: The preset ``clis run``, ``clis experiment`` and ``make run`` use unless told otherwise: the
+#: one that learns (docs/results.md). ``paper``, the rules exactly as printed, diverges in most
+#: runs (the divergence guard, :mod:`clis_learner.core.guard`, says so).
+DEFAULT_PRESET = 'improved'
+
+
 def PRESET_NAMES() -> tuple[str, ...]:  # noqa: N802 - a constant computed from the files
     """``paper`` (config/clis.yaml) and NAME of every ``config/clis_NAME.yaml``."""
     names = sorted(p.stem[len('clis_'):] for p in config_dir().glob('clis_*.yaml'))
@@ -115,12 +122,19 @@ def preset_overrides(name: str) -> dict[str, Any]:
     """The dotted overrides of preset ``name`` (``{}`` for ``paper``): the
     ``/**: ros__parameters:`` of ``config/clis_NAME.yaml``, a partial CLIS parameter file
     (ROS nodes take it as a second ``--params-file`` after clis.yaml)."""
+    path = preset_path(name)
+    return {} if path is None else flatten(ros_parameters(path, CLIS_NODE))
+
+
+def preset_path(name: str) -> Path | None:
+    """The partial parameter file of preset ``name`` (``config/clis_NAME.yaml``; None for
+    ``paper``, which is config/clis.yaml alone). ValueError for an unknown preset."""
     if name == 'paper':
-        return {}
+        return None
     path = config_dir() / f'clis_{name}.yaml'
     if not path.is_file():
         raise ValueError(f'unknown preset {name!r}: choose from {", ".join(PRESET_NAMES())}')
-    return flatten(ros_parameters(path, CLIS_NODE))
+    return path
 
 
 def preset_groups(name: str) -> dict[str, dict[str, Any]]:

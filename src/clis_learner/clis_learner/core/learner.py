@@ -58,6 +58,8 @@ grow_share      share of the steps with gamma_i rho_l > 1, where the trace of (8
                 e <- lambda gamma_i rho e + c b, and the product c grow
 ess             (sum_l c_l)^2 / sum_l c_l^2, effective sample size of the steps' weights
 v_start         V_i(x_0) before the update
+v_abs_max       max_l |V_i(x_l)| over the episode's states before the update (the divergence
+                guard, :mod:`~clis_learner.core.guard`)
 ret             sum_l gamma_i^l r_l, the discounted return on module i's grid
 delta_abs_mean  mean |delta_l| of (8)
 grad_norm       Frobenius norm of the applied W direction, sum_k G_k dln pi_k/dW (0 if fixed)
@@ -96,7 +98,8 @@ __all__ = ['DIAGNOSTIC_KEYS', 'Replay', 'Learner']
 #: Keys of each module's diagnostics, in a stable order (CSV columns).
 DIAGNOSTIC_KEYS = ('n_steps', 'on_policy', 'rho_mean', 'grow_share', 'c_final', 'c_min',
                    'c_median', 'c_max', 'ess',
-                   'v_start', 'ret', 'delta_abs_mean', 'grad_norm', 'sigma', 'diverged')
+                   'v_start', 'v_abs_max', 'ret', 'delta_abs_mean', 'grad_norm', 'sigma',
+                   'diverged')
 
 
 @dataclass(frozen=True)
@@ -237,6 +240,12 @@ class Learner:
         for ``decision``; with ``kappa > 0`` (default ``arbiter.bonus``) including the
         exploration bonus ``kappa u_j(x_0)`` of the start state.
 
+        The values are those the modules proposed with (:meth:`EpisodeMemory.values`), the
+        numbers the arbiter drew from, so the probabilities are the drawn ones bit for bit on
+        any CPU (a matrix-vector product ``B_j w_j`` over the decisions may round differently
+        from the modules' one dot product per decision, by BLAS kernel); a decision recorded
+        without its value gets it from :meth:`ModuleCore.value`, the modules' own code.
+
         Returns
         -------
         pi : np.ndarray, shape (L, N)
@@ -252,7 +261,11 @@ class Learner:
                 raise ValueError(f'module {mod.name!r} never recorded a decision')
             k = latest_index(t_j, t)
             pi[:, j] = mod.policy.density_batch(B_j[k], U)
-            values[:, j] = B_j[k] @ mod.w
+            v_j = memory.values(mod.name)
+            if np.isnan(v_j).any():
+                # (1)(2) V_j = w_j^T b_j, one decision at a time as the module computes it
+                v_j = np.array([mod.value(b) for b in B_j])
+            values[:, j] = v_j[k]
             if bonus is not None and mod.visits is not None:
                 # the bonus kappa u_j(x_0) of the episode's draw (selection = episode), from
                 # the counts the episode was played with (updated after learn())
@@ -345,6 +358,7 @@ class Learner:
             'c_max': float(c.max()),
             'ess': ess,
             'v_start': v_start,
+            'v_abs_max': float(np.max(np.abs(v_before))),
             'ret': float(np.sum(m.gamma ** np.arange(n_steps) * rp.r)),
             'delta_abs_mean': float(np.mean(np.abs(delta))),
             'grad_norm': grad_norm,

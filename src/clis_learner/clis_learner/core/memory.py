@@ -3,7 +3,10 @@
 What the learner needs to train every module from one episode, whichever module acted:
 
 * decisions: for each module, its own features ``b_i`` at its own decision times (every
-  ``tau_i``; all modules keep deciding whether they act or not);
+  ``tau_i``; all modules keep deciding whether they act or not), and the value
+  ``V_i = w_i^T b_i`` the module proposed with (what the arbiter's rule (3) read: the learner
+  takes the selection probabilities from these numbers, not from a recomputation that another
+  BLAS kernel may round differently);
 * actions: the commands the robot executed, as a piecewise-constant sequence of change points
   ``(t, u, behaviour)``: at each decision of the acting (behaviour) module, its *proposed*
   action (before the arbiter's clip; the densities of (7) are of the proposal) and its name;
@@ -59,6 +62,7 @@ class EpisodeMemory:
         """Forget everything (reuse the object for the next episode)."""
         self._dec_t: dict[str, list[float]] = {n: [] for n in self.module_names}
         self._dec_b: dict[str, list[np.ndarray]] = {n: [] for n in self.module_names}
+        self._dec_v: dict[str, list[float]] = {n: [] for n in self.module_names}
         self._obs: dict[str, list[tuple[float, np.ndarray]]] = {n: [] for n in self.module_names}
         self._act_t: list[float] = []
         self._act_u: list[np.ndarray] = []
@@ -76,30 +80,31 @@ class EpisodeMemory:
         if self.t_end is not None:
             raise RuntimeError('the episode has ended: clear() the memory first')
 
-    def record_decision(self, module: str, t: float, b: ArrayLike) -> None:
-        """Module ``module`` decided at time ``t`` [s] with features ``b`` (copied), shape (n,).
+    def record_decision(self, module: str, t: float, b: ArrayLike,
+                        value: float = math.nan) -> None:
+        """Module ``module`` decided at time ``t`` [s] with features ``b`` (copied), shape (n,),
+        and proposed with the value ``value`` = ``V_i(x(t))`` (NaN: not known; the learner then
+        computes it as the module does, :meth:`Learner.mixture_terms`).
 
         Times of one module must increase.
         """
-        self._check_open()
-        ts = self._dec_t[module]
-        if ts and t <= ts[-1] + TIME_TOL:
-            raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
-        ts.append(float(t))
-        self._dec_b[module].append(np.array(b, dtype=np.float64).reshape(-1))
+        self._add_decision(module, t, np.array(b, dtype=np.float64), value)
 
-    def _take_decisions(self, module: str, items: list[tuple[float, np.ndarray]]) -> None:
-        """:meth:`record_decision` for each ``(t, b)`` of ``items`` (time-sorted, ``b`` 1-D
-        float64 arrays handed over, not copied: :meth:`StreamBuffer.cut` drops its own)."""
+    def _take_decisions(self, module: str,
+                        items: list[tuple[float, np.ndarray, float]]) -> None:
+        """:meth:`record_decision` for each ``(t, b, value)`` of ``items`` (time-sorted, ``b``
+        1-D float64 arrays handed over, not copied: :meth:`StreamBuffer.cut` drops its own)."""
         self._check_open()
-        ts, bs = self._dec_t[module], self._dec_b[module]
-        for t, b in items:
+        ts, bs, vs = self._dec_t[module], self._dec_b[module], self._dec_v[module]
+        for t, b, v in items:
             if ts and t <= ts[-1] + TIME_TOL:
                 raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
             ts.append(t)
             bs.append(b)
+            vs.append(v)
 
-    def _add_decision(self, module: str, t: float, b: ArrayLike) -> None:
+    def _add_decision(self, module: str, t: float, b: ArrayLike,
+                      value: float = math.nan) -> None:
         """:meth:`record_decision` with ``b`` handed over, not copied (as
         :meth:`StreamBuffer.add_decision` then :meth:`StreamBuffer.cut` hand it over)."""
         self._check_open()
@@ -108,6 +113,7 @@ class EpisodeMemory:
             raise ValueError(f'{module}: decision time {t} does not follow {ts[-1]}')
         ts.append(float(t))
         self._dec_b[module].append(np.asarray(b, dtype=np.float64).reshape(-1))
+        self._dec_v[module].append(float(value))
 
     def _add_observation(self, module: str, t: float, b: ArrayLike) -> None:
         """:meth:`record_observation` with ``b`` handed over, not copied, and times in
@@ -190,6 +196,12 @@ class EpisodeMemory:
             self._stacked[module] = out
         return out
 
+    def values(self, module: str) -> np.ndarray:
+        """The values ``V_i(x(t_l))`` (L,) ``module`` proposed with at the decisions of
+        :meth:`decisions` (NaN where none was recorded)."""
+        t, _ = self.decisions(module)
+        return np.asarray(self._dec_v[module][:len(t)], dtype=np.float64)
+
     def states(self, module: str, t: ArrayLike, resampled: bool = True
                ) -> tuple[np.ndarray, np.ndarray]:
         """Features of ``module`` at the times ``t`` (M,), for its density in (6)(7).
@@ -265,25 +277,29 @@ class StreamBuffer:
 
     def clear(self) -> None:
         """Forget everything."""
-        self._dec: dict[str, list[tuple[float, np.ndarray]]] = {n: [] for n in self.module_names}
+        self._dec: dict[str, list[tuple[float, np.ndarray, float]]] = {
+            n: [] for n in self.module_names}
         self._obs: dict[str, list[tuple[float, np.ndarray]]] = {n: [] for n in self.module_names}
         self._act: list[tuple[float, np.ndarray, str]] = []
         self._rew: list[tuple[float, float]] = []
 
-    def add_decision(self, module: str, t: float, b: ArrayLike) -> bool:
+    def add_decision(self, module: str, t: float, b: ArrayLike,
+                     value: float = math.nan) -> bool:
         """Module ``module`` decided at ``t`` [s] with features ``b``, shape (n,) (not copied:
-        do not modify it afterwards). False (ignored): a decision at ``t`` is there already (a
-        module sends its last proposal again while the clock stands still)."""
+        do not modify it afterwards), proposing with the value ``value`` (NaN: not known).
+        False (ignored): a decision at ``t`` is there already (a module sends its last proposal
+        again while the clock stands still)."""
         items = self._dec[module]
+        item = (float(t), np.asarray(b, dtype=np.float64).reshape(-1), float(value))
         # sorted by time: nothing within the tolerance when the newest is older than that
         if not items or items[-1][0] < t - TIME_TOL:
             # the common case (a newer decision): appended, as _insert would
-            items.append((float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
+            items.append(item)
             return True
-        for tk, _ in items[-8:]:
-            if abs(tk - t) <= TIME_TOL:
+        for it in items[-8:]:
+            if abs(it[0] - t) <= TIME_TOL:
                 return False
-        _insert(items, (float(t), np.asarray(b, dtype=np.float64).reshape(-1)))
+        _insert(items, item)
         return True
 
     def add_observation(self, module: str, t: float, b: ArrayLike) -> None:

@@ -35,6 +35,7 @@ import numpy as np
 
 from clis_learner.core.config import ClisParams
 from clis_learner.core.episodes import episode_row
+from clis_learner.core.guard import Divergence, DivergenceGuard
 from clis_learner.core.learner import Learner
 from clis_learner.core.memory import TIME_TOL, EpisodeMemory, StreamBuffer, episode_time
 
@@ -55,6 +56,8 @@ class Closed:
     sim_return: float = math.nan
     #: the row of :func:`~clis_learner.core.episodes.episode_row` alone (the runner's)
     core: dict[str, Any] | None = None
+    #: the modules the divergence guard reported at this episode (first time only)
+    diverged: tuple[Divergence, ...] = ()
 
 
 class EpisodeStream:
@@ -92,6 +95,7 @@ class EpisodeStream:
         self.min_period = min(m.period for m in self.modules)
         self.clock = DecisionClock([m.period for m in self.modules], dt)
         self.learner = Learner(self.modules, params)
+        self.guard = DivergenceGuard(self.names, [m.gamma for m in self.modules])
         self.buffer = StreamBuffer(self.names)
         self.memory = EpisodeMemory(self.names)
         self.episode: dict | None = None        # the running episode (seen from its start)
@@ -110,8 +114,8 @@ class EpisodeStream:
     def proposal(self, p: Proposal) -> bool:
         """A module's proposal; False if it was a copy (already there)."""
         if self.whole:
-            self.memory._add_decision(p.module, self._rel(p.t), p.b)
-        elif not self.buffer.add_decision(p.module, p.t, p.b):
+            self.memory._add_decision(p.module, self._rel(p.t), p.b, p.value)
+        elif not self.buffer.add_decision(p.module, p.t, p.b, p.value):
             return False
         if self.episode is not None and p.t >= self.episode['t0'] - TIME_TOL \
                 and p.version != self.version:
@@ -243,12 +247,16 @@ class EpisodeStream:
         # (with learner.behaviour_state = resampled: an observation that did not arrive)
         held = self.learner.held_steps - held
         core = episode_row(mem, self.names, probs, values, diag, ep['start'])
+        # the divergence guard observes (no number changes): the n-th learned episode
+        new = self.guard.check(self.version, diag, mem.rewards()[1]) if learnable else []
+        core['diverged'] = '+'.join(d.module for d in new)
+        core['diverged_why'] = '; '.join(d.reason for d in new)
         row = {'label': self.condition, 'condition': self.condition, 'seed': self.seed,
                'phase': 'train', 'episode': ep['index'], **core,
                'event': c['event'], 'learned': int(learnable), 'version': self.version,
                'stale_decisions': ep['stale'], 'complete': int(complete), 't_end': c['t_end'],
                'held_steps': held}
-        return Closed(row, learnable, c['t_end'], ep['index'], c['return'], core)
+        return Closed(row, learnable, c['t_end'], ep['index'], c['return'], core, tuple(new))
 
     def _first_draw(self, t0: float, t_end: float) -> tuple[list | None, list | None]:
         """``Pr(i | x)`` and values of the episode's first draw (None if none arrived)."""
