@@ -35,7 +35,7 @@ EXPERIMENT = [
     (['--sim-set', 'sensors'], '--sim-set'), (['--sim-set', 'sensors.nope=1'], '--sim-set'),
     (['--sim-set', 'sensors.ir_noise_sigma=x'], '--sim-set'),
     (['--arena', 'nonexistent.yaml'], '--arena'), (['--arena', 'FILE'], '--arena'),
-    (['--out', 'FILE'], '--out'), (['--ablation'], '--ablation'),
+    (['--out', 'FILE'], '--out'), (['--preset', 'paper', '--ablation'], '--ablation'),
     (['--figures-only'], 'experiment.json'), (['--resume', '--out'], '--out'),
     (['--unknown-flag'], '--unknown-flag'),
 ]

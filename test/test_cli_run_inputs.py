@@ -15,7 +15,12 @@ import subprocess
 import sys
 
 from clis_learner.core.checkpoint import save_checkpoint
-from clis_learner.core.config import load_clis_params, params_hash
+from clis_learner.core.config import (
+    DEFAULT_PRESET,
+    load_clis_params,
+    params_hash,
+    preset_overrides,
+)
 from clis_modules.core.modules import arena_map, make_modules
 from cr_sim.core.arena import load_arena
 import pytest
@@ -45,7 +50,7 @@ def inputs(tmp_path_factory) -> Path:
     (folder / 'arena_bad.yaml').write_text('obstacles: 3\n')
     (folder / 'garbage.npz').write_bytes(b'not a checkpoint')
     (folder / 'a_file').write_text('x')
-    clis = load_clis_params()
+    clis = load_clis_params(overrides=preset_overrides(DEFAULT_PRESET))   # clis run's default
     modules = make_modules(clis, 'innate', *arena_map(load_arena()))
     save_checkpoint(folder / 'innate.npz', modules, params_hash(clis),
                     {'condition': 'innate', 'seed': 0, 'episode': 3, 'version': 3})

@@ -267,8 +267,10 @@ def test_thesis_solo_evaluation_and_improved_episode(tmp_path):
 
 
 def test_experiment_preset_and_ablation_flags(tmp_path, capsys):
-    code = clis(['experiment', '--out', str(tmp_path / 'x'), '--ablation', '--episodes', '60'])
-    assert code == 2 and '--ablation needs --preset' in capsys.readouterr().err
+    code = clis(['experiment', '--out', str(tmp_path / 'x'), '--preset', 'paper', '--ablation',
+                 '--episodes', '60'])
+    assert code == 2 and 'not with --preset paper' in capsys.readouterr().err
+    assert not (tmp_path / 'x').exists()
     code = clis(['experiment', '--out', str(tmp_path / 'x'), '--eval-every', '-1'])
     assert code == 2 and '--eval-every' in capsys.readouterr().err
     out = tmp_path / 'abl'                            # the plan, run on tiny jobs

@@ -124,13 +124,13 @@ def test_killed_ray_worker_is_retried_and_resume_crosses_backends(pool_run, tmp_
     (out / 'runs').mkdir(parents=True)
     # one run already done by the process pool: --resume keeps it, Ray runs the other three
     for ext in ('json', 'npz'):
-        shutil.copy(pool_run / 'runs' / f'innate__s0.{ext}', out / 'runs')
+        shutil.copy(pool_run / 'runs' / f'improved_innate__s0.{ext}', out / 'runs')
     killed, finished = {}, {}
     update, finish = experiment.Progress.update, experiment.Progress.finish
 
     def update_and_kill(self, job, episodes, note):
         # the first progress report of the first place run: kill its worker, by its pid
-        if not killed and note.startswith('place') and '[worker ' in note:
+        if not killed and note.startswith('improved:place') and '[worker ' in note:
             where = note.rsplit('[worker ', 1)[1].rstrip(']')
             killed.update(job=job, where=where, episodes=episodes)
             os.kill(int(where.rsplit(':', 1)[1]), signal.SIGKILL)

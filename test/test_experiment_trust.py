@@ -137,7 +137,7 @@ def test_report_final_eval_is_the_one_after_learning(tiny, capsys):
     capsys.readouterr()
     assert clis(['report', str(tiny)]) == 0
     out = capsys.readouterr().out
-    row = next(line for line in out.splitlines() if line.startswith('| view | 1 | '))
+    row = next(line for line in out.splitlines() if line.startswith('| improved:view | 1 | '))
     assert row.endswith('(ep 2) |'), row           # not the evaluation before learning
 
 

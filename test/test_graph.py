@@ -45,12 +45,14 @@ SHORT = '/**:\n  ros__parameters:\n    episode: {time_limit: 20.0}\n'
 
 
 def clis_run(out: Path, *args: str) -> subprocess.Popen:
-    """``clis run`` of episodes of 20 s (:data:`SHORT`) into ``out``."""
+    """``clis run`` of episodes of 20 s (:data:`SHORT`) into ``out``, with the paper's rules
+    (what these tests judge of the selection and the place module's belief is of them)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     short = out.parent / f'{out.name}-short.yaml'
     short.write_text(SHORT)
     return subprocess.Popen([sys.executable, '-m', 'clis_app.cli', 'run', '--out', str(out),
-                             '--quiet', '--params', str(short), *args], stdout=subprocess.PIPE,
+                             '--quiet', '--preset', 'paper', '--params', str(short), *args],
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
 
 

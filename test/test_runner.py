@@ -119,9 +119,9 @@ def test_place_selection_map_covers_the_free_arena():
 
 def test_experiment_command_writes_results_and_resumes(tmp_path, capsys):
     out = tmp_path / 'exp'
-    argv = ['experiment', '--conditions', 'innate,async@common.beta=200.0', '--episodes', '4',
-            '--block', '2', '--seeds', '2', '--eval-episodes', '1', '--workers', '2',
-            '--out', str(out), '--quiet', '--train-start', 'starts']
+    argv = ['experiment', '--preset', 'paper', '--conditions', 'innate,async@common.beta=200.0',
+            '--episodes', '4', '--block', '2', '--seeds', '2', '--eval-episodes', '1',
+            '--workers', '2', '--out', str(out), '--quiet', '--train-start', 'starts']
     assert clis(argv) == 0
     with open(out / 'episodes.csv') as fh:
         rows = list(csv.DictReader(fh))

@@ -327,13 +327,16 @@ def main(args: argparse.Namespace) -> int:
     specs = []
     labels = []
     for label, (name, overrides), preset in zip(conditions, parsed, with_preset):
+        base = {}
         if preset and preset_overrides:
-            label, overrides = f'{args.preset}:{label}', {**preset_overrides, **overrides}
+            label, base = f'{args.preset}:{label}', preset_overrides
         labels.append(label)
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             specs.append(JobSpec(
                 index=len(specs), label=label, condition=name,
-                overrides={**common, **overrides}, sim_overrides=sim_overrides, seed=seed,
+                # the preset, then --set, then the condition's own @key=value
+                overrides={**base, **common, **overrides}, sim_overrides=sim_overrides,
+                seed=seed,
                 episodes=args.episodes, eval_episodes=args.eval_episodes,
                 arena=str(args.arena) if args.arena else None, run_dir=str(runs_dir),
                 block=args.block, train_start=args.train_start, eval_every=args.eval_every,
