@@ -59,7 +59,7 @@ def _tree(path: Path) -> dict[str, bytes]:
 
 @pytest.mark.parametrize('change, says', [
     (['--episodes', '4'], 'episodes=2 (now 4)'),
-    (['--set', 'common.beta=200.0'], "{'common.beta': 200.0}"),
+    (['--set', 'common.beta=200.0'], "'common.beta': 200.0"),
     (['--eval-episodes', '2'], 'eval_episodes=1 (now 2)'),
 ])
 def test_resume_refuses_runs_made_with_other_settings(tiny, tmp_path, capsys, change, says):

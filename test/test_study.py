@@ -5,6 +5,7 @@ through reports; the report's counts and intervals; the arena commands."""
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 import shutil
@@ -159,11 +160,20 @@ def test_an_interrupted_study_resumed_elsewhere_reports_what_one_run_straight_th
     for name in ('report.md', 'report.json', 'forest.png', 'hidden_share.png', 'layouts.png'):
         (moved / name).unlink()
     shutil.rmtree(moved / 'work')
-    # a run of an earlier, larger SPEC left in DIR/runs is not reported
+    # a run of an earlier, larger SPEC left in DIR/runs is not reported, and the report says
+    # how many summaries it read and how many it left out
     one = next((moved / 'runs').rglob('view__s1.json'))
     stray = json.loads(one.read_text())
     stray.update(seed=7, final={'episode': 2, 'reached': 5, 'n': 5})
     one.with_name('view__s7.json').write_text(json.dumps(stray))
+    assert clis(['study', '--report-only', '--out', str(moved)]) == 0
+    md, numbers = _report(moved)
+    read = f'{n_runs} run summaries read of {n_runs} runs planned.'
+    assert read in _report(straight)[0]
+    assert md == _report(straight)[0].replace(read, read + ' 1 more summary in the runs folder '
+                                              'is of runs outside the plan, not reported.')
+    assert json.loads(numbers) == {**json.loads(_report(straight)[1]), 'outside_plan': 1}
+    one.with_name('view__s7.json').unlink()
     assert clis(['study', '--report-only', '--out', str(moved)]) == 0
     assert _report(moved) == _report(straight)
     assert (moved / 'forest.png').stat().st_size > 0
@@ -212,6 +222,13 @@ def test_the_report_counts_layouts_above_and_below_with_their_intervals():
     (g,) = rep['numbers']['groups']
     assert {a: c['async_best']['verdict'] for a, c in g['layouts'].items()} == \
         {'up': 'above', 'down': 'below', 'flat': '', 'designed': 'above'}
+    # above every single module: judged on each single module's interval
+    assert {a: c['async_all']['verdict'] for a, c in g['layouts'].items()} == \
+        {'up': 'above', 'down': '', 'flat': '', 'designed': 'above'}
+    assert {a: c['async_minus']['innate']['verdict'] for a, c in g['layouts'].items()} == \
+        {'up': 'above', 'down': 'below', 'flat': 'above', 'designed': 'above'}
+    assert g['aggregate']['async_all'] == {'above': 1, 'layouts': 3, 'interval': True,
+                                           'verdict': ''}
     assert {a: c['async_best']['best'] for a, c in g['layouts'].items()} == \
         {'up': 'view', 'down': 'view', 'flat': 'view', 'designed': 'view'}
     ab = g['aggregate']['async_best']
@@ -227,8 +244,8 @@ def test_the_report_counts_layouts_above_and_below_with_their_intervals():
     assert 'thesis_place' not in g['aggregate']          # no Place condition: no test
     md = rep['markdown']
     assert bad_rows(md) == []
-    assert '| improved | wander | 4 | 1 above, 1 below, 1 not resolved; over 3 generated ' \
-        'layouts -7.2' in md
+    assert '| improved | wander | 4 | 3 generated | on 1 of 3; over layouts: not above | ' in md
+    assert '| -7.2 ± ' in md and ' (1 above, 1 below, 1 not resolved) |' in md
     # the layout designed by hand is in the table, not in the aggregate over generated ones
     assert g['layouts']['designed']['async_best']['verdict'] == 'above'
     assert g['aggregate']['over'] == 'generated' and g['aggregate']['n_layouts'] == 3
@@ -310,3 +327,89 @@ def test_the_report_counts_the_runs_in_which_a_module_diverged():
     assert d['conditions'] == {'innate': [0, 3], 'view': [0, 3], 'async': [1, 3]}
     assert '| improved | wander | 12 | 9 | 1 | async 1/3 |' in out['markdown']
     assert '## Divergence' in out['markdown']
+
+
+def test_leave_one_out_chooses_the_best_single_on_the_other_seeds():
+    # View is best on the mean over all four seeds (42.5 against 40), by its two good seeds:
+    # chosen on the same seeds it is compared on, the choice favours it
+    innate = {s: 40.0 for s in range(4)}
+    view = {0: 90.0, 1: 70.0, 2: 10.0, 3: 0.0}
+    asy = {s: 50.0 for s in range(4)}
+    got = study_report.leave_one_out_best(asy, {'innate': innate, 'view': view})
+    # seed 0: the others' view mean is 26.7 < 40, innate; seed 1: 33.3, innate; seeds 2, 3:
+    # 53.3 and 56.7, view
+    assert got == {0: ('innate', 10.0), 1: ('innate', 10.0), 2: ('view', 40.0),
+                   3: ('view', 50.0)}
+    # a tie goes to the module listed first; a module without the seed is not a candidate
+    tie = study_report.leave_one_out_best({0: 5.0, 1: 5.0, 2: 5.0},
+                                          {'view': {0: 1.0, 1: 1.0, 2: 1.0},
+                                           'innate': {0: 1.0, 1: 1.0}})
+    assert tie == {0: ('view', 4.0), 1: ('view', 4.0), 2: ('view', 4.0)}
+    assert study_report.leave_one_out_best({0: 5.0}, {'view': {0: 1.0}}) == {}   # no other seed
+    # the same from run summaries: the report's two comparators side by side
+    rows = []
+    for seed in range(4):
+        rows.append(_summary('gen-a', 'innate', seed, 20))
+        rows.append(_summary('gen-a', 'view', seed, int(view[seed]) // 2))
+        rows.append(_summary('gen-a', 'async', seed, 25))
+    (g,) = study_report.report(rows)['numbers']['groups']
+    cell = g['layouts']['gen-a']
+    assert cell['async_best']['best'] == 'view'
+    assert cell['async_best']['mean'] == pytest.approx((-40 - 20 + 40 + 50) / 4)    # 7.5
+    loo = cell['async_best_loo']
+    assert loo['mean'] == pytest.approx((10 + 10 + 40 + 50) / 4)                   # 27.5
+    assert loo['chosen'] == {'0': 'innate', '1': 'innate', '2': 'view', '3': 'view'}
+    assert cell['async_minus']['innate']['mean'] == pytest.approx(10.0)
+    assert cell['async_minus']['view']['mean'] == pytest.approx(7.5)
+    assert g['aggregate']['async_best_loo']['mean'] == pytest.approx(27.5)
+    md = study_report.report(rows)['markdown']
+    assert '+27.5 ± ' in md and '(innate 2, view 2)' in md and '+7.5 ± ' in md
+    assert bad_rows(md) == []
+
+
+def test_success_rate_intervals_stay_within_0_and_100():
+    # a module that learns on one seed of four: 0, 0, 0, 100%; the t-interval runs from -55
+    # to +105
+    got = study_report.rate_interval([0.0, 0.0, 0.0, 100.0])
+    assert got['mean'] == pytest.approx(25.0) and got['half'] > 75.0
+    assert (got['low'], got['high']) == (0.0, 100.0)
+    inner = study_report.rate_interval([40.0, 50.0, 60.0])
+    assert (inner['low'], inner['high']) == pytest.approx((50.0 - inner['half'],
+                                                           50.0 + inner['half']))
+    assert 0.0 < inner['low'] < 50.0 < inner['high'] < 100.0          # inside: not clipped
+    few = study_report.rate_interval([0.0, 100.0])              # no interval below 3 values
+    assert few['mean'] == 50.0 and math.isnan(few['low']) and math.isnan(few['high'])
+    rows = []
+    for seed in range(4):
+        rows.append(_summary('gen-a', 'innate', seed, 48 + seed % 2))
+        rows.append(_summary('gen-a', 'view', seed, 50 if seed == 3 else 0))
+        rows.append(_summary('gen-a', 'async', seed, 25))
+    rep = study_report.report(rows)
+    (g,) = rep['numbers']['groups']
+    for cond in g['layouts']['gen-a']['conditions'].values():
+        assert 0.0 <= cond['low'] <= cond['mean'] <= cond['high'] <= 100.0
+    view = g['layouts']['gen-a']['conditions']['view']
+    assert (view['low'], view['high']) == (0.0, 100.0)
+    assert '| 25.0 [0.0, 100.0] |' in rep['markdown']
+    assert ' ± ' not in rep['markdown'].split('Final evaluated success [%]:')[1].split(
+        'Differences')[0]
+
+
+def test_the_share_of_runs_below_innates_level():
+    assert study_report.below_level([10.0, 40.0, 39.0, 90.0, math.nan], 40.0) == (2, 4)
+    rows = []
+    for arena, view in (('gen-a', (45, 35, 5, 0)), ('gen-b', (45, 45, 20, 45))):
+        for seed in range(4):
+            rows.append(_summary(arena, 'innate', seed, (19, 21, 20, 20)[seed]))    # mean 40%
+            rows.append(_summary(arena, 'view', seed, view[seed]))
+            rows.append(_summary(arena, 'async', seed, 20))           # at Innate's mean
+    rep = study_report.report(rows)
+    (g,) = rep['numbers']['groups']
+    a, b = g['layouts']['gen-a']['conditions'], g['layouts']['gen-b']['conditions']
+    assert a['view']['below_innate'] == [2, 4] and b['view']['below_innate'] == [0, 4]
+    assert a['async']['below_innate'] == [0, 4]          # equal to the level is not below
+    assert 'below_innate' not in a['innate']
+    assert g['aggregate']['conditions']['view']['below_innate'] == [2, 8]
+    md = rep['markdown']
+    assert '| view below innate |' in md and '| 2/4 |' in md and '| 2/8 |' in md
+    assert '; 2/8 below innate' in md

@@ -7,17 +7,20 @@
     python tools/study_why.py studies/layouts practice
 
 ``camera``: on config/arena.yaml, each condition's final evaluated success and Async - best
-single against the destination's detection range (``sensors.destination_range`` of the
-presets' ``sim_set``; a run without it sees the destination up to ``camera_range``), per
-protocol; with ``--png`` the same as a figure.
+single (chosen on the same seeds, and on the other seeds: clis_app.study_report) against the
+destination's detection range (``sensors.destination_range`` of the presets' ``sim_set``; a
+run without it sees the destination up to ``camera_range``), per protocol; with ``--png`` the
+same as a figure.
 
 ``starts``: the final evaluated success from each start A-E (A-C: straight line clear; D: a
 short obstacle across it; E: the destination hidden), per protocol and condition, mean over
-the generated layouts of each layout's mean over seeds: where Async gains or loses.
+the generated layouts of each layout's mean over seeds: where Async gains or loses. Then,
+per protocol and condition, how many runs end at or below their first evaluation (episode 0)
+and how many end below Innate's mean on their layout.
 
-``layouts``: across the generated layouts, per protocol, how Async - best single goes with
-the layout's hidden share, Innate's success and View - Innate (Pearson r with its 95%
-interval by Fisher's z).
+``layouts``: across the generated layouts, per protocol, how Async - best single (chosen on
+the same seeds, and on the other seeds) goes with the layout's hidden share, Innate's success
+and View - Innate (Pearson r with its 95% interval by Fisher's z).
 
 ``selection``: at the end of learning, the arbiter's Pr(i | x_0) of (3) at each start A-E
 (the draw of an evaluation episode there, 5 sensor-noise draws), per protocol, mean over the
@@ -33,7 +36,8 @@ on the first generated layouts (``--layouts``, ``--seeds``). It reruns those lea
 episode starts, and writes ``DIR/practice.json`` (committed: ``--from-json`` prints it).
 
 Reads ``DIR/runs`` and ``DIR/report.json`` (``clis study --report-only --out DIR`` writes
-it); prints Markdown tables.
+it); prints Markdown tables. A success rate is printed as its mean and [its 95% t-interval,
+clipped to [0, 100]]; a difference as its mean ± the half-width of its interval.
 """
 
 from __future__ import annotations
@@ -70,11 +74,22 @@ def _pm(m: float, h: float, sign: bool = False) -> str:
     return s + (f' ± {h:.1f}' if math.isfinite(h) else '')
 
 
+def _rate_pm(values: list[float]) -> str:
+    """A success rate in %: its mean and [95% t-interval clipped to [0, 100]]."""
+    from clis_app.study_report import rate_interval
+    r = rate_interval(values)
+    if not math.isfinite(r['mean']):
+        return 'n/a'
+    return f'{r["mean"]:.1f}' + (f' [{r["low"]:.1f}, {r["high"]:.1f}]'
+                                 if math.isfinite(r['low']) else '')
+
+
 def _rate(d: dict) -> float:
     return 100.0 * d['final']['reached'] / d['final']['n']
 
 
 def camera(out: Path, png: Path | None) -> None:
+    from clis_app.study_report import leave_one_out_best, rate_interval
     from cr_sim.core.sim import load_sim_params
     default = load_sim_params().sensors.camera_range
     cells: dict[tuple[str, float], dict[str, dict[int, float]]] = defaultdict(
@@ -87,29 +102,33 @@ def camera(out: Path, png: Path | None) -> None:
         cells[(d['protocol'], float(rng))][d['condition']][d['seed']] = _rate(d)
     ranges = sorted({r for _, r in cells})
     print(f'Destination range on config/arena.yaml (the landmarks keep {default:g} m), '
-          'improved, final evaluated success [%], mean ± 95% CI over seeds; Async - best '
-          'single paired over seeds:\n')
+          'improved, final evaluated success [%], mean [95% CI over seeds, clipped to '
+          '[0, 100]]; Async - best single paired over seeds, the best chosen on the same seeds '
+          '(in-sample) and on the other seeds (leave one out):\n')
     print('| protocol | destination range [m] | seeds | ' + ' | '.join(
-        c.capitalize() for c in CONDITIONS) + ' | Async - best single |')
-    print('|---|---|---|' + '---|' * (len(CONDITIONS) + 1))
+        c.capitalize() for c in CONDITIONS) + ' | Async - best single, in-sample | '
+        'Async - best single, leave one out |')
+    print('|---|---|---|' + '---|' * (len(CONDITIONS) + 2))
     curves: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for proto in PROTOCOLS:
         for r in ranges:
             c = cells.get((proto, r))
             if not c:
                 continue
-            stats = {k: _ci(list(c[k].values())) for k in CONDITIONS if k in c}
+            stats = {k: rate_interval(list(c[k].values())) for k in CONDITIONS if k in c}
             singles = [k for k in ('innate', 'view', 'place') if k in stats]
-            diff = (math.nan, math.nan)
+            diff = loo = (math.nan, math.nan)
             if 'async' in c and singles:
-                best = max(singles, key=lambda k: stats[k][0])
+                best = max(singles, key=lambda k: (stats[k]['mean'], -singles.index(k)))
                 diff = _ci([c['async'][s] - c[best][s] for s in c['async'] if s in c[best]])
+                loo = _ci([v for _, v in leave_one_out_best(
+                    c['async'], {k: c[k] for k in singles}).values()])
             seeds = len(c.get('async', {}))
             print(f'| {proto} | {r:g} | {seeds} | ' + ' | '.join(
-                _pm(*stats[k]) if k in stats else 'n/a' for k in CONDITIONS)
-                + f' | {_pm(*diff, sign=True)} |')
-            for k, (m, h) in stats.items():
-                curves[proto][k].append((r, m, h))
+                _rate_pm(list(c[k].values())) if k in stats else 'n/a' for k in CONDITIONS)
+                + f' | {_pm(*diff, sign=True)} | {_pm(*loo, sign=True)} |')
+            for k, st in stats.items():
+                curves[proto][k].append((r, st['mean'], st['low'], st['high']))
     if png is not None:
         _camera_figure(curves, png, default)
 
@@ -125,8 +144,9 @@ def _camera_figure(curves: dict, png: Path, default: float) -> None:
                              squeeze=False)
     for ax, (proto, by) in zip(axes[0], curves.items()):
         for k, pts in by.items():
-            x, m, h = (np.array(v, float) for v in zip(*pts))
-            ax.errorbar(x, m, yerr=np.nan_to_num(h), color=colours[k], marker='o', ms=4,
+            x, m, lo, hi = (np.array(v, float) for v in zip(*pts))
+            err = np.nan_to_num(np.stack([m - lo, hi - m]))        # the clipped interval
+            ax.errorbar(x, m, yerr=err, color=colours[k], marker='o', ms=4,
                         capsize=3, label=k.capitalize())
         ax.set_xscale('log')
         ax.set_xticks([1.0, 1.5, 2.0, 5.0], ['1', '1.5', '2', '5'])
@@ -137,7 +157,8 @@ def _camera_figure(curves: dict, png: Path, default: float) -> None:
     axes[0][0].set_ylabel('final evaluated success [%]', fontsize=9)
     axes[0][0].legend(fontsize=8, loc='lower left')
     fig.suptitle(f'config/arena.yaml, improved: the destination seen up to the range on x, '
-                 f'the landmarks up to {default:g} m (mean ± 95% CI over 5 seeds)', fontsize=9)
+                 f'the landmarks up to {default:g} m (mean and 95% CI over 5 seeds, clipped '
+                 'to [0, 100])', fontsize=9)
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png, dpi=110, bbox_inches='tight')
@@ -145,6 +166,7 @@ def _camera_figure(curves: dict, png: Path, default: float) -> None:
 
 
 def starts(out: Path) -> None:
+    from clis_app.study_report import below_level
     # (protocol, condition) -> start -> per-layout means
     per: dict[tuple[str, str], dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     runs: dict[tuple, list[dict]] = defaultdict(list)
@@ -157,7 +179,8 @@ def starts(out: Path) -> None:
             per[(proto, cond)][s].append(
                 float(np.mean([100 * p[f'reached_{s}'] / (p['n'] / len(STARTS)) for p in last])))
     print('Final evaluated success from each start [%], improved, mean over the generated '
-          'layouts (each layout: its mean over seeds) ± 95% CI over layouts:\n')
+          'layouts (each layout: its mean over seeds) [95% CI over layouts, clipped to '
+          '[0, 100]]:\n')
     print('| protocol | condition | layouts | ' + ' | '.join(STARTS) + ' |')
     print('|---|---|---|' + '---|' * len(STARTS))
     for proto in PROTOCOLS:
@@ -166,7 +189,28 @@ def starts(out: Path) -> None:
             if not by:
                 continue
             print(f'| {proto} | {cond} | {len(by["A"])} | '
-                  + ' | '.join(_pm(*_ci(by[s])) for s in STARTS) + ' |')
+                  + ' | '.join(_rate_pm(by[s]) for s in STARTS) + ' |')
+    print('\nRuns on the generated layouts (improved) that end at or below their first '
+          "evaluation (episode 0, before learning), and that end below Innate's mean on "
+          'their layout:\n')
+    print('| protocol | condition | runs | end at or below their first evaluation | '
+          "end below Innate's mean |")
+    print('|---|---|---|---|---|')
+    for proto in PROTOCOLS:
+        for cond in CONDITIONS:
+            rows = [(a, r) for (p, c, a), rs in runs.items() if (p, c) == (proto, cond)
+                    for r in rs]
+            if not rows:
+                continue
+            flat = sum(r['eval_curve'][-1]['reached'] <= r['eval_curve'][0]['reached']
+                       for _, r in rows)
+            below = 0
+            if cond != 'innate':
+                for a in {a for a, _ in rows}:
+                    level = float(np.mean([_rate(r) for r in runs[(proto, 'innate', a)]]))
+                    below += below_level([_rate(r) for b, r in rows if b == a], level)[0]
+            print(f'| {proto} | {cond} | {len(rows)} | {flat} | '
+                  + ('-' if cond == 'innate' else str(below)) + ' |')
 
 
 def _pearson(x: list[float], y: list[float]) -> str:
@@ -183,23 +227,26 @@ def _pearson(x: list[float], y: list[float]) -> str:
 
 def layouts(out: Path) -> None:
     report = json.loads((out / 'report.json').read_text())
-    print('Across the generated layouts (improved): Pearson r of Async - best single with '
-          "each layout's property [95% CI, Fisher's z]:\n")
-    print('| protocol | layouts | hidden share | Innate | View - Innate |')
-    print('|---|---|---|---|---|')
+    print('Across the generated layouts (improved): Pearson r of Async - best single (chosen '
+          'on the same seeds: in-sample; on the other seeds: leave one out) with each '
+          "layout's property [95% CI, Fisher's z]:\n")
+    print('| protocol | best single | layouts | hidden share | Innate | View - Innate |')
+    print('|---|---|---|---|---|---|')
     for g in report['groups']:
         if g['preset'] != 'improved':
             continue
-        cells = [c for c in g['layouts'].values() if c.get('layout_seed') is not None
-                 and c.get('async_best') and c['async_best']['mean'] is not None]
-        y = [c['async_best']['mean'] for c in cells]
-        hidden = [c['hidden_share'] for c in cells]
-        innate = [(c['conditions'].get('innate') or {}).get('mean', math.nan) for c in cells]
-        vi = [(c.get('view_innate') or {}).get('mean', math.nan) for c in cells]
-        vi = [math.nan if v is None else v for v in vi]
-        innate = [math.nan if v is None else v for v in innate]
-        print(f'| {g["protocol"]} | {len(cells)} | {_pearson(hidden, y)} | '
-              f'{_pearson(innate, y)} | {_pearson(vi, y)} |')
+        for key, how in (('async_best', 'in-sample'), ('async_best_loo', 'leave one out')):
+            cells = [c for c in g['layouts'].values() if c.get('layout_seed') is not None
+                     and c.get(key) and c[key]['mean'] is not None]
+            y = [c[key]['mean'] for c in cells]
+            hidden = [c['hidden_share'] for c in cells]
+            innate = [(c['conditions'].get('innate') or {}).get('mean', math.nan)
+                      for c in cells]
+            vi = [(c.get('view_innate') or {}).get('mean', math.nan) for c in cells]
+            vi = [math.nan if v is None else v for v in vi]
+            innate = [math.nan if v is None else v for v in innate]
+            print(f'| {g["protocol"]} | {how} | {len(cells)} | {_pearson(hidden, y)} | '
+                  f'{_pearson(innate, y)} | {_pearson(vi, y)} |')
 
 
 def _start_probs(d: dict, out: Path, draws: int = 5) -> dict[str, list[float]] | None:

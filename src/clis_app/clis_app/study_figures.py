@@ -1,5 +1,5 @@
 """Figures of layouts and studies: the picture of an arena with its starts, the forest plot of
-Async - best single module per layout, and View - Innate against the hidden share.
+Async minus each single module per layout, and View - Innate against the hidden share.
 
 The arena is drawn as the Fig. 4 maps draw it (:func:`clis_app.figures.draw_arena`), with
 what a layout's situations need on top: the landmarks in their colours, each start's heading,
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+import itertools
 import math
 from pathlib import Path
 
@@ -136,61 +137,119 @@ def layout_picture(arena: Arena, robot_radius: float, path: Path, title: str) ->
 
 @dataclass(frozen=True)
 class ForestRow:
-    """One row of a forest plot: a label, a mean and its 95% half-width (NaN: none)."""
+    """One interval of a forest plot.
+
+    Attributes
+    ----------
+    label : str
+        The band it is drawn in (a layout, or the aggregate over layouts).
+    series : str
+        What it compares (``Async - view``...): its colour within the band.
+    mean, half : float
+        The mean and the half-width of its 95% interval (NaN: none).
+    aggregate : bool
+        The aggregate over layouts (a diamond).
+    above : bool
+        The band's verdict: Async above every single module (the band is shaded).
+    """
 
     label: str
+    series: str
     mean: float
     half: float
-    group: str = ''
     aggregate: bool = False
+    above: bool = False
 
 
-def forest_plot(panels: dict[str, list[ForestRow]], path: Path, title: str,
+#: Colours of the forest plot's series: each single module, then the leave-one-out choice.
+_SERIES = {'Async - innate': 'tab:blue', 'Async - view': 'tab:purple',
+           'Async - place': 'tab:green', 'Async - best single, leave one out': 'black'}
+_MORE = ('tab:brown', 'tab:olive', 'tab:cyan', 'tab:pink')
+
+
+def forest_plot(panels: dict[str, dict[str, list[ForestRow]]], path: Path, title: str,
                 xlabel: str) -> None:
-    """One panel per key of ``panels`` (a protocol), one row per layout, the aggregate over
-    layouts last (a diamond); rows of different ``group`` (presets) in different colours."""
+    """A forest plot: one column per protocol, one row of panels per preset.
+
+    Parameters
+    ----------
+    panels : dict
+        ``{protocol: {preset: rows}}``. Each layout is a band of rows, one per series (the
+        colours of :data:`_SERIES`), the aggregate over layouts last (diamonds); a band whose
+        rows have ``above`` is shaded.
+    path : Path
+        The PNG written.
+    title, xlabel : str
+        The figure's title and the x axis' label.
+    """
     from matplotlib.lines import Line2D
-    n_rows = max((len(rows) for rows in panels.values()), default=1)
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels) + 1.6,
-                                                       0.28 * n_rows + 1.8),
-                             sharey=True, sharex=True, squeeze=False)
-    groups = list(dict.fromkeys(r.group for rows in panels.values() for r in rows))
-    colours = dict(zip(groups, ('tab:blue', 'tab:red', 'tab:green', 'tab:purple',
-                                'tab:brown', 'tab:olive')))
-    labels = list(dict.fromkeys(r.label for rows in panels.values() for r in rows
-                                if not r.aggregate))
-    labels += list(dict.fromkeys(r.label for rows in panels.values() for r in rows
-                                 if r.aggregate))
-    ypos = {lb: len(labels) - 1 - k for k, lb in enumerate(labels)}
-    n_aggregate = len({r.label for rows in panels.values() for r in rows if r.aggregate})
-    step = min(0.22, 0.8 / max(len(groups), 1))          # a layout's rows within its band
-    offset = {g: (k - (len(groups) - 1) / 2) * step for k, g in enumerate(groups)}
-    for ax, (name, rows) in zip(axes[0], panels.items()):
-        ax.axvline(0.0, color='k', lw=0.8)
-        for r in rows:
-            y = ypos[r.label] + offset[r.group]
-            c = colours[r.group]
-            if math.isfinite(r.half):
-                ax.plot([r.mean - r.half, r.mean + r.half], [y, y], '-', color=c, lw=1.4)
-            ax.plot(r.mean, y, 'D' if r.aggregate else 'o', color=c,
-                    ms=8 if r.aggregate else 4.5, mfc=c if r.aggregate or math.isfinite(
-                        r.half) else 'white')
-        if n_aggregate:
-            ax.axhline(n_aggregate - 0.5, color='grey', lw=0.6, ls=':')
-        ax.set_title(name, fontsize=10)
-        ax.set_xlabel(xlabel, fontsize=8)
-        ax.grid(axis='x', alpha=0.3)
-    axes[0][0].set_yticks(list(ypos.values()), list(ypos.keys()), fontsize=8)
-    axes[0][0].set_ylim(-0.7, len(labels) - 0.3)
-    handles = [Line2D([], [], color=colours[g], marker='o', label=f'preset {g}')
-               for g in groups]
-    handles += [Line2D([], [], color='grey', marker='D', ls='', ms=7,
+    from matplotlib.patches import Patch
+    protocols = list(panels)
+    presets = list(dict.fromkeys(p for by in panels.values() for p in by))
+    series = list(dict.fromkeys(r.series for by in panels.values() for rows in by.values()
+                                for r in rows))
+    known = list(_SERIES)
+    first = list(series)
+    series.sort(key=lambda s: (known.index(s) if s in known else len(known), first.index(s)))
+    extra = itertools.cycle(_MORE)
+    colours = {s: _SERIES.get(s) or next(extra) for s in series}
+    bands = {}
+    for p in presets:
+        rows = [r for by in panels.values() for r in by.get(p, [])]
+        bands[p] = (list(dict.fromkeys(r.label for r in rows if not r.aggregate))
+                    + list(dict.fromkeys(r.label for r in rows if r.aggregate)))
+    heights = [len(bands[p]) + 0.8 for p in presets]
+    fig, axes = plt.subplots(len(presets), len(protocols), squeeze=False, sharex=True,
+                             sharey='row', figsize=(3.9 * len(protocols) + 1.8,
+                                                    0.36 * sum(heights) + 1.6),
+                             gridspec_kw={'height_ratios': heights})
+    step = min(0.2, 0.84 / max(len(series), 1))           # a band's rows
+    offset = {s: ((len(series) - 1) / 2 - k) * step for k, s in enumerate(series)}
+    for i, p in enumerate(presets):
+        labels = bands[p]
+        ypos = {lb: len(labels) - 1 - k for k, lb in enumerate(labels)}
+        n_aggregate = len({r.label for by in panels.values() for r in by.get(p, [])
+                           if r.aggregate})
+        for j, proto in enumerate(protocols):
+            ax = axes[i][j]
+            rows = panels[proto].get(p, [])
+            for lb in {r.label for r in rows if r.above}:
+                ax.axhspan(ypos[lb] - 0.5, ypos[lb] + 0.5, color='#d9f2d9', zorder=0)
+            ax.axvline(0.0, color='k', lw=0.8)
+            for r in rows:
+                y = ypos[r.label] + offset[r.series]
+                c = colours[r.series]
+                if math.isfinite(r.half):
+                    ax.plot([r.mean - r.half, r.mean + r.half], [y, y], '-', color=c,
+                            lw=1.8 if r.aggregate else 1.2)
+                ax.plot(r.mean, y, 'D' if r.aggregate else 'o', color=c,
+                        ms=5.5 if r.aggregate else 3.2,
+                        mfc=c if r.aggregate or math.isfinite(r.half) else 'white')
+            if n_aggregate:
+                ax.axhline(n_aggregate - 0.5, color='grey', lw=0.6, ls=':')
+            ax.set_ylim(-0.6, len(labels) - 0.4)
+            ax.grid(axis='x', alpha=0.3)
+            ax.tick_params(axis='x', labelsize=8)
+            if i == 0:
+                ax.set_title(f'protocol {proto}', fontsize=10)
+            if i == len(presets) - 1:
+                ax.set_xlabel(xlabel, fontsize=9)
+            if not rows:
+                ax.text(0.5, 0.5, 'no runs', transform=ax.transAxes, ha='center',
+                        va='center', fontsize=8, color='grey')
+        axes[i][0].set_yticks(list(ypos.values()), list(ypos.keys()), fontsize=7.5)
+        axes[i][0].set_ylabel(p, fontsize=9, rotation=0, ha='right', va='center',
+                              fontweight='bold', labelpad=6)
+    handles = [Line2D([], [], color=colours[s], marker='o', ms=4, label=s) for s in series]
+    handles += [Line2D([], [], color='grey', marker='D', ls='', ms=6,
                        label='over layouts (95% CI over layouts)'),
-                Line2D([], [], color='grey', marker='o', mfc='white', ls='',
-                       label='fewer than 3 seeds: no interval')]
-    fig.legend(handles=handles, loc='lower center', fontsize=8, ncol=len(handles),
-               bbox_to_anchor=(0.5, -0.06))
-    fig.suptitle(title, fontsize=10)
+                Line2D([], [], color='grey', marker='o', mfc='white', ls='', ms=4,
+                       label='fewer than 3 seeds: no interval'),
+                Patch(color='#d9f2d9', label='Async above every single module')]
+    height = fig.get_size_inches()[1]
+    fig.legend(handles=handles, loc='upper center', fontsize=8, ncol=len(handles),
+               bbox_to_anchor=(0.5, 0.0))
+    fig.suptitle(title, fontsize=10, y=1.0 + 0.3 / height)
     _save(fig, path)
 
 

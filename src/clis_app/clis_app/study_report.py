@@ -3,14 +3,18 @@
 ``layouts.png`` (docs/study.md).
 
 Per preset, protocol and layout: each condition's final evaluated success (the last
-evaluation point, A-E, learning off); Async - best single module; the thesis test (M_vi and
-M_pl trained inside Async, evaluated alone, minus the same module trained alone), each paired
-over seeds with its 95% t-interval; and the per-layout values aggregated over layouts.
+evaluation point, A-E, learning off) with its 95% t-interval over seeds clipped to [0, 100]
+and the share of its runs that end below Innate's mean; Async minus each single module;
+Async minus the best single module, chosen on the same seeds (in-sample) and chosen on the
+other seeds (leave one seed out); whether Async is above every single module; the thesis test
+(M_vi and M_pl trained inside Async, evaluated alone, minus the same module trained alone).
+Each difference is paired over seeds with its 95% t-interval, and the per-layout values are
+aggregated over layouts.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 import json
 import math
 import os
@@ -21,7 +25,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ['SUMMARY_FORMAT', 'PROTOCOLS', 'ReportError', 'load_summaries', 'study_summaries',
-           'is_single', 'report',
+           'is_single', 'rate_interval', 'leave_one_out_best', 'below_level', 'report',
            'report_only']
 
 #: Format of the per-run summary files.
@@ -50,7 +54,6 @@ def _fail(message: str, code: int = 2) -> int:
     return code
 
 
-
 def load_summaries(out: Path) -> list[dict]:
     """Every run summary in ``DIR/runs`` (sorted by arena, protocol, preset, condition,
     seed)."""
@@ -68,29 +71,36 @@ def load_summaries(out: Path) -> list[dict]:
     return rows
 
 
-def study_summaries(out: Path) -> tuple[list[dict], int | None, str | None]:
-    """The summaries of the study in ``out`` (those of its ``plan.json``, when it has one),
-    the number of runs planned and the study's name."""
+def _planned(out: Path) -> tuple[list[dict], int | None, str | None, int]:
+    """:func:`study_summaries`, and how many summaries in ``DIR/runs`` are of runs outside
+    the plan."""
     summaries = load_summaries(out)
     if not (out / 'plan.json').is_file():
-        return summaries, None, None
+        return summaries, None, None, 0
     plan_data = json.loads((out / 'plan.json').read_text())
     keys = {tuple(k) for k in plan_data['runs']}
     # runs of an earlier, larger SPEC left in DIR/runs are not this study's
-    return ([d for d in summaries if (d['arena'], d['protocol'], d['preset'], d['condition'],
-                                      d['seed']) in keys], len(keys), plan_data.get('name'))
+    kept = [d for d in summaries
+            if (d['arena'], d['protocol'], d['preset'], d['condition'], d['seed']) in keys]
+    return kept, len(keys), plan_data.get('name'), len(summaries) - len(kept)
+
+
+def study_summaries(out: Path) -> tuple[list[dict], int | None, str | None]:
+    """The summaries of the study in ``out`` (those of its ``plan.json``, when it has one),
+    the number of runs planned and the study's name."""
+    return _planned(out)[:3]
 
 
 def report_only(out: Path) -> int:
     """Write ``DIR/report.md``, ``report.json`` and the figures from the summaries."""
     try:
-        summaries, planned, name = study_summaries(out)
+        summaries, planned, name, outside = _planned(out)
     except (ValueError, KeyError, TypeError) as exc:
         return _fail(f'--out {out}: {exc}')
     if not summaries:
         return _fail(f'--out {out}: no run summaries in {out}/runs (not a study folder, or '
                      'no run finished yet)')
-    rep = report(summaries, planned, name)
+    rep = report(summaries, planned, name, outside)
     _atomic_text(out / 'report.md', rep['markdown'])
     _atomic_json(out / 'report.json', rep['numbers'])
     drawn = _draw(rep['numbers'], out)
@@ -115,6 +125,85 @@ def _ci(values: list[float]) -> tuple[float, float, int]:
     return m, h, int(np.isfinite(np.asarray(values, float)).sum()) if values else 0
 
 
+def rate_interval(values: Sequence[float]) -> dict[str, float]:
+    """The mean of success rates in % and its 95% t-interval, clipped to [0, 100].
+
+    Parameters
+    ----------
+    values : sequence of float
+        Success rates in %, one per run (seed or layout); NaN values are left out.
+
+    Returns
+    -------
+    dict
+        ``mean``, ``half`` (the t-interval's half-width, NaN below 3 values), ``low`` and
+        ``high`` (``mean -+ half`` clipped to [0, 100]; NaN without an interval) and ``n``
+        (the finite values).
+    """
+    m, h, n = _ci(list(values))
+    if not math.isfinite(h):
+        return {'mean': m, 'half': h, 'low': math.nan, 'high': math.nan, 'n': n}
+    return {'mean': m, 'half': h, 'low': max(0.0, m - h), 'high': min(100.0, m + h), 'n': n}
+
+
+def below_level(values: Sequence[float], level: float) -> tuple[int, int]:
+    """How many of ``values`` (finite) lie below ``level``, and of how many.
+
+    Parameters
+    ----------
+    values : sequence of float
+        One value per run (final success rates in %).
+    level : float
+        The level (Innate's mean on the same layout, in the report).
+
+    Returns
+    -------
+    tuple of int
+        ``(below, n)``; a value within 1e-9 of ``level`` is not below it.
+    """
+    vals = [v for v in values if math.isfinite(v)]
+    return sum(v < level - 1e-9 for v in vals), len(vals)
+
+
+def leave_one_out_best(target: Mapping[int, float],
+                       singles: Mapping[str, Mapping[int, float]]
+                       ) -> dict[int, tuple[str, float]]:
+    """``target`` minus the best single module chosen without the seed it is judged on.
+
+    For each seed ``s`` of ``target``, the single module with the highest mean over the
+    seeds other than ``s`` (a tie goes to the module listed first in ``singles``) is the
+    comparator, and the difference is ``target[s]`` minus that module's value at ``s``. A
+    module without a run at ``s`` or without another seed is not a candidate for ``s``.
+
+    Parameters
+    ----------
+    target : mapping of int to float
+        Async's value per seed.
+    singles : mapping of str to mapping of int to float
+        Each single module's value per seed, in the order that breaks ties.
+
+    Returns
+    -------
+    dict
+        ``{seed: (module chosen, target[seed] - module[seed])}`` for the seeds that have a
+        candidate.
+    """
+    out = {}
+    order = list(singles)
+    for s in sorted(target):
+        if not math.isfinite(target[s]):
+            continue
+        means = {}
+        for c in order:
+            rest = [v for t, v in singles[c].items() if t != s and math.isfinite(v)]
+            if s in singles[c] and math.isfinite(singles[c][s]) and rest:
+                means[c] = float(np.mean(rest))
+        if means:
+            best = max(means, key=lambda c: (means[c], -order.index(c)))
+            out[s] = (best, target[s] - singles[best][s])
+    return out
+
+
 def _verdict(m: float, h: float) -> str:
     """'above' / 'below' when the 95% interval excludes 0, '' otherwise (or no interval)."""
     if not (math.isfinite(m) and math.isfinite(h)):
@@ -122,14 +211,24 @@ def _verdict(m: float, h: float) -> str:
     return 'above' if m - h > 0 else ('below' if m + h < 0 else '')
 
 
-def _paired(a: dict[int, float], b: dict[int, float]) -> list[float]:
+def _paired(a: Mapping[int, float], b: Mapping[int, float]) -> list[float]:
     return [a[s] - b[s] for s in sorted(a) if s in b and math.isfinite(a[s] - b[s])]
+
+
+def _diff(values: list[float]) -> dict[str, Any]:
+    m, h, n = _ci(values)
+    return {'mean': m, 'half': h, 'n': n, 'verdict': _verdict(m, h)}
 
 
 def is_single(condition: str) -> bool:
     """Whether ``condition`` has one module (View, Place... alone)."""
     from clis_modules.core.plugin import parse_condition
     return len(parse_condition(condition).modules) == 1
+
+
+def _order(conditions: Iterable[str]) -> list[str]:
+    from clis_modules.core.plugin import condition_order
+    return sorted(conditions, key=condition_order)
 
 
 def _cell(summaries: list[dict], base: list[dict] | None = None) -> dict:
@@ -143,42 +242,87 @@ def _cell(summaries: list[dict], base: list[dict] | None = None) -> dict:
     cell: dict[str, Any] = {'conditions': {}, 'seeds': sorted({d['seed'] for d in summaries}),
                             'hidden_share': summaries[0]['hidden_share'],
                             'layout_seed': summaries[0]['settings'].get('layout_seed')}
-    for c, r in rates.items():
-        m, h, n = _ci(list(r.values()))
-        cell['conditions'][c] = {'mean': m, 'half': h, 'n': n}
-    singles = [c for c in rates if is_single(c)]
+    for c in _order(rates):
+        cell['conditions'][c] = rate_interval(list(rates[c].values()))
+    if 'innate' in rates:
+        level = cell['conditions']['innate']['mean']
+        for c in cell['conditions']:
+            if c != 'innate':
+                cell['conditions'][c]['below_innate'] = list(below_level(
+                    list(rates[c].values()), level))
+    singles = [c for c in _order(rates) if is_single(c)]
     if 'async' in rates and singles:
+        each = {c: _diff(_paired(rates['async'], rates[c])) for c in singles}
+        cell['async_minus'] = each
+        # above every single module: the rule of the verdict, judged on each interval
+        cell['async_all'] = {'verdict': 'above' if all(v['verdict'] == 'above'
+                                                       for v in each.values()) else ''}
+        # the best single chosen on the seeds it is compared on (in-sample)
         best = max(singles, key=lambda c: (cell['conditions'][c]['mean'], -singles.index(c)))
-        m, h, n = _ci(_paired(rates['async'], rates[best]))
-        each = {c: _verdict(*_ci(_paired(rates['async'], rates[c]))[:2]) for c in singles}
-        verdict = ('above' if all(v == 'above' for v in each.values())
-                   else 'below' if _verdict(m, h) == 'below' else '')
-        cell['async_best'] = {'best': best, 'mean': m, 'half': h, 'n': n, 'verdict': verdict}
+        cell['async_best'] = {'best': best, **each[best]}
+        # the best single chosen on the other seeds (leave one seed out)
+        loo = leave_one_out_best(rates['async'], {c: rates[c] for c in singles})
+        if loo:
+            cell['async_best_loo'] = {'chosen': {str(s): c for s, (c, _) in loo.items()},
+                                      **_diff([v for _, v in loo.values()])}
     for module in ('view', 'place'):
         if 'async' in rates and module in rates:
             solo = {s: 100 * _solo_rate(d, module) for s, d in by['async'].items()}
-            m, h, n = _ci(_paired(solo, rates[module]))
-            cell[f'thesis_{module}'] = {'mean': m, 'half': h, 'n': n, 'verdict': _verdict(m, h)}
+            cell[f'thesis_{module}'] = _diff(_paired(solo, rates[module]))
     if 'innate' in rates and 'view' in rates:
         m, h, n = _ci(_paired(rates['view'], rates['innate']))
         cell['view_innate'] = {'mean': m, 'half': h, 'n': n}
     base_async = {d['seed']: 100 * _rate(d) for d in base or [] if d['condition'] == 'async'}
     if 'async' in rates and base_async:
-        m, h, n = _ci(_paired(rates['async'], base_async))
-        cell['async_vs_base'] = {'mean': m, 'half': h, 'n': n, 'verdict': _verdict(m, h)}
+        cell['async_vs_base'] = _diff(_paired(rates['async'], base_async))
     return cell
 
 
-def report(summaries: list[dict], planned: int | None = None, name: str | None = None
-           ) -> dict:
-    """The study's report from its run summaries: ``{'markdown': text, 'numbers': dict}``.
+#: The differences aggregated over layouts, each a key of a layout's numbers.
+_AGGREGATED = ('async_best', 'async_best_loo', 'thesis_view', 'thesis_place', 'view_innate',
+               'async_vs_base')
+
+
+def _aggregate(values: list[dict]) -> dict[str, Any]:
+    """The mean of per-layout differences, its t-interval over layouts and verdict, and the
+    counts of layouts whose own interval is above, below or neither."""
+    m, h, n = _ci([v['mean'] for v in values])
+    verdicts = [v.get('verdict', '') for v in values]
+    return {'mean': m, 'half': h, 'layouts': n, 'verdict': _verdict(m, h),
+            'above': verdicts.count('above'), 'below': verdicts.count('below'),
+            'unresolved': verdicts.count('')}
+
+
+def report(summaries: list[dict], planned: int | None = None, name: str | None = None,
+           outside: int = 0) -> dict:
+    """The study's report from its run summaries.
 
     Per preset, protocol and layout: each condition's final evaluated success (the last
-    evaluation point, A-E, learning off) over seeds; Async - best single module (paired over
-    seeds); the thesis test, M_vi and M_pl trained inside Async and evaluated alone minus the
-    same module trained alone (paired over seeds, the same evaluation draws). Each with a 95%
-    t-interval over seeds; and per preset and protocol the per-layout means aggregated over
-    layouts (a t-interval over layouts), with the counts of layouts above and below.
+    evaluation point, A-E, learning off) over seeds, with its 95% t-interval clipped to
+    [0, 100] and how many runs end below Innate's mean; Async minus each single module, minus
+    the best single chosen on the same seeds (in-sample) and minus the best single chosen on
+    the other seeds (:func:`leave_one_out_best`), and whether Async is above every single
+    module; the thesis test, M_vi and M_pl trained inside Async and evaluated alone minus the
+    same module trained alone (the same evaluation draws). Each difference is paired over
+    seeds with its 95% t-interval; per preset and protocol the per-layout values are
+    aggregated over layouts (a t-interval over layouts), with the counts of layouts above
+    and below.
+
+    Parameters
+    ----------
+    summaries : list of dict
+        The run summaries (``DIR/runs``) of the study's plan.
+    planned : int, optional
+        How many runs the plan has.
+    name : str, optional
+        The study's name (the report's title).
+    outside : int
+        How many summaries in ``DIR/runs`` are of runs outside the plan (not reported).
+
+    Returns
+    -------
+    dict
+        ``{'markdown': text, 'numbers': dict}``, the numbers with NaN as None.
     """
     groups: dict[tuple[str, str], dict[str, list[dict]]] = {}
     for d in summaries:
@@ -195,7 +339,7 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
             rows += [d for d in groups.get((other, proto), {}).get(arena, [])
                      if is_single(d['condition']) and d['seed'] in seeds]
     numbers: dict[str, Any] = {'name': name, 'runs': len(summaries), 'planned': planned,
-                               'groups': []}
+                               'outside_plan': outside, 'groups': []}
     for (preset, proto) in sorted(groups, key=lambda k: (k[0], PROTOCOLS.index(k[1])
                                                          if k[1] in PROTOCOLS else 9, k[1])):
         other = borrowed[(preset, proto)]
@@ -211,22 +355,33 @@ def report(summaries: list[dict], planned: int | None = None, name: str | None =
         pool = generated or cells
         agg: dict[str, Any] = {'over': 'generated' if generated else 'all',
                                'n_layouts': len(pool)}
-        for key in ('async_best', 'thesis_view', 'thesis_place', 'view_innate',
-                    'async_vs_base'):
-            per = [c[key]['mean'] for c in pool.values() if key in c]
+        for key in _AGGREGATED:
+            per = [c[key] for c in pool.values() if key in c]
             if per:
-                m, h, n = _ci(per)
-                verdicts = [c[key].get('verdict', '') for c in pool.values() if key in c]
-                agg[key] = {'mean': m, 'half': h, 'layouts': n, 'verdict': _verdict(m, h),
-                            'above': verdicts.count('above'), 'below': verdicts.count('below'),
-                            'unresolved': verdicts.count('')}
-        conds = list(dict.fromkeys(c for cell in cells.values() for c in cell['conditions']))
-        from clis_modules.core.plugin import condition_order
-        conds.sort(key=condition_order)
+                agg[key] = _aggregate(per)
+        conds = _order(dict.fromkeys(c for cell in cells.values() for c in cell['conditions']))
+        singles = [c for c in conds if is_single(c)]
+        for c in singles:
+            per = [cell['async_minus'][c] for cell in pool.values()
+                   if c in cell.get('async_minus', {})]
+            if per:
+                agg.setdefault('async_minus', {})[c] = _aggregate(per)
+        if agg.get('async_minus'):
+            alls = [cell['async_all']['verdict'] for cell in pool.values() if 'async_all' in cell]
+            agg['async_all'] = {
+                'above': alls.count('above'), 'layouts': len(alls),
+                'interval': all(math.isfinite(a['half']) for a in agg['async_minus'].values()),
+                'verdict': 'above' if all(a['verdict'] == 'above'
+                                          for a in agg['async_minus'].values()) else ''}
         for c in conds:
-            m, h, n = _ci([cell['conditions'][c]['mean'] for cell in pool.values()
-                           if c in cell['conditions']])
-            agg.setdefault('conditions', {})[c] = {'mean': m, 'half': h, 'layouts': n}
+            ok = [cell for cell in pool.values() if c in cell['conditions']]
+            agg.setdefault('conditions', {})[c] = rate_interval(
+                [cell['conditions'][c]['mean'] for cell in ok])
+            counts = [cell['conditions'][c]['below_innate'] for cell in ok
+                      if 'below_innate' in cell['conditions'][c]]
+            if counts:
+                agg['conditions'][c]['below_innate'] = [sum(n for n, _ in counts),
+                                                        sum(k for _, k in counts)]
         numbers['groups'].append({'preset': preset, 'protocol': proto, 'conditions': conds,
                                   'layouts': cells, 'aggregate': agg,
                                   'singles_from': borrowed[(preset, proto)],
@@ -277,12 +432,29 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
+def _num(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
 def _pm(d: Mapping[str, Any] | None, sign: bool = False) -> str:
-    if not d or d.get('mean') is None or not math.isfinite(d['mean']):
+    if not d or not math.isfinite(_num(d.get('mean'))):
         return 'n/a'
     s = f'{d["mean"]:+.1f}' if sign else f'{d["mean"]:.1f}'
-    h = d.get('half')
-    return s + (f' ± {h:.1f}' if h is not None and math.isfinite(h) else '')
+    h = _num(d.get('half'))
+    return s + (f' ± {h:.1f}' if math.isfinite(h) else '')
+
+
+def _rate_pm(d: Mapping[str, Any] | None) -> str:
+    """A success rate: its mean and clipped interval, ``28.4 [0.0, 75.6]``."""
+    if not d or not math.isfinite(_num(d.get('mean'))):
+        return 'n/a'
+    lo, hi = _num(d.get('low')), _num(d.get('high'))
+    return f'{d["mean"]:.1f}' + (f' [{lo:.1f}, {hi:.1f}]' if math.isfinite(lo) else '')
+
+
+def _below(d: Mapping[str, Any] | None) -> str:
+    n = (d or {}).get('below_innate')
+    return f'{n[0]}/{n[1]}' if n else 'n/a'
 
 
 def _mark(d: Mapping[str, Any] | None) -> str:
@@ -290,17 +462,29 @@ def _mark(d: Mapping[str, Any] | None) -> str:
     return {'above': ' **above**', 'below': ' **below**'}.get(v, '')
 
 
-def _counts(a: Mapping[str, Any] | None, over: str = 'all') -> str:
+def _counts(a: Mapping[str, Any] | None) -> str:
+    """An aggregate's mean ± interval over layouts, with the counts of layouts."""
     if not a:
         return 'n/a'
-    return (f'{a["above"]} above, {a["below"]} below, {a["unresolved"]} not resolved; '
-            f'over {_layouts(a["layouts"], over)} {_pm(a, sign=True)}{_mark(a)}')
+    return (f'{_pm(a, sign=True)}{_mark(a)} ({a["above"]} above, {a["below"]} below, '
+            f'{a["unresolved"]} not resolved)')
 
 
-#: The differences of the report: key, column title.
-_DIFFS = (('async_best', 'Async - best single'), ('thesis_view', 'M_vi in Async, alone - View'),
-          ('thesis_place', 'M_pl in Async, alone - Place'),
-          ('async_vs_base', 'Async - Async without the option'))
+def _all_counts(a: Mapping[str, Any] | None) -> str:
+    if not a:
+        return 'n/a'
+    over = ('**above**' if a['verdict'] == 'above' else 'not above' if a.get('interval')
+            else 'no interval')
+    return f'on {a["above"]} of {a["layouts"]}; over layouts: {over}'
+
+
+#: The differences against the best single module: key, column title.
+_BEST = (('async_best', 'Async - best single, in-sample'),
+         ('async_best_loo', 'Async - best single, leave one out'))
+#: The thesis test: key, column title.
+_THESIS = (('thesis_view', 'M_vi in Async, alone - View'),
+           ('thesis_place', 'M_pl in Async, alone - Place'))
+_BASE = ('async_vs_base', 'Async - Async without the option')
 
 
 def _row(cells: list[str]) -> str:
@@ -308,60 +492,148 @@ def _row(cells: list[str]) -> str:
     return '| ' + ' | '.join(cells) + ' |'
 
 
+def _head(titles: list[str]) -> list[str]:
+    return [_row(titles), '|' + '---|' * len(titles)]
+
+
 def _layouts(n: int, over: str = 'all') -> str:
     kind = 'generated ' if over == 'generated' else ''
     return f'{n} {kind}layout{"" if n == 1 else "s"}'
 
 
+def _pooled(a: Mapping[str, Any]) -> str:
+    return f'{a["n_layouts"]} generated' if a['over'] == 'generated' else f'{a["n_layouts"]}, all'
+
+
+def _chosen(c: Mapping[str, Any]) -> str:
+    """The modules the leave-one-out choice took, most often first: ``(view 4, innate 1)``."""
+    picks = list(c.get('chosen', {}).values())
+    order = _order(dict.fromkeys(picks))
+    ranked = sorted(order, key=lambda m: (-picks.count(m), order.index(m)))
+    return ' (' + ', '.join(f'{m} {picks.count(m)}' for m in ranked) + ')' if picks else ''
+
+
+_INTRO = (
+    'Final evaluated success: the successes from A-E at the last evaluation point (learning '
+    'off), in %, the mean over seeds and [the 95% t-interval over seeds, clipped to [0, 100]] '
+    '(none below 3 seeds). "below innate" n/k: n of the condition\'s k runs (seeds) end below '
+    "Innate's mean on that layout. Differences in points, paired over seeds (a seed's runs "
+    'share their evaluation starts and noise), ± the half-width of the 95% t-interval over '
+    'seeds: Async - each single module; Async - best single, in-sample: the single module '
+    "with the highest mean over the layout's seeds, compared on those same seeds (the choice "
+    'favours the comparator); Async - best single, leave one out: for each seed, the single '
+    'module with the highest mean over the other seeds, compared on this seed (the modules '
+    'chosen, with how many seeds each); the thesis test, M_vi (M_pl) trained inside Async and '
+    'evaluated alone minus View (Place) trained alone, on the same evaluation draws. '
+    "**above** / **below**: that difference's interval excludes 0. Async is above every "
+    'single module where its interval against each single module is above 0. Over layouts: '
+    'the mean of the per-layout values, with its 95% t-interval over layouts (**above** / '
+    '**below** likewise; above every single module when each of those intervals is above 0), '
+    'over the generated layouts where there are any (the layouts read from files, designed '
+    'by hand, are in the tables but not in the aggregate), else over all ("pooled"). The '
+    'summaries count the layouts on which each difference is above, below or not resolved, '
+    'among the pooled layouts.')
+
+
 def _markdown(numbers: dict) -> str:
     title = f'# Study report: {numbers["name"]}' if numbers.get('name') else '# Study report'
-    out = [title, '',
-           f'{numbers["runs"]} runs' + (f' of {numbers["planned"]} planned'
-                                        if numbers['planned'] else '') + '. '
-           'Final evaluated success: the successes from A-E at the last evaluation point '
-           '(learning off), in %. Differences in points, paired over seeds: Async - best '
-           'single module (the single module with the highest mean on that layout); the '
-           'thesis test, M_vi (M_pl) trained inside Async and evaluated alone minus View '
-           '(Place) trained alone, on the same evaluation draws. ± is the half-width of the '
-           '95% t-interval over seeds (none below 3 seeds); **above** / **below**: that '
-           'interval excludes 0 (for Async above: its interval against every single module). '
-           'Over layouts: the mean of the per-layout values, ± its 95% t-interval over '
-           'layouts (**above** / **below** likewise), over the generated layouts where there '
-           'are any (the layouts read from files, designed by hand, are in the tables but not '
-           'in the aggregate), else over all. The summary counts the layouts on which each '
-           'difference is above, below or not resolved, among the same layouts.', '',
-           '## Summary', '']
-    diffs = [(k, t) for k, t in _DIFFS if any(k in g['aggregate'] for g in numbers['groups'])]
-    out += [_row(['preset', 'protocol', 'layouts'] + [t for _, t in diffs]),
-            '|---|---|---|' + '---|' * len(diffs)]
-    for g in numbers['groups']:
+    read = (f'{numbers["runs"]} run summaries read' + (f' of {numbers["planned"]} runs planned'
+                                                      if numbers['planned'] else '') + '.')
+    if numbers.get('outside_plan'):
+        n = numbers['outside_plan']
+        read += (f' {n} more summar{"y" if n == 1 else "ies"} in the runs folder '
+                 f'{"is" if n == 1 else "are"} of runs outside the plan, not reported.')
+    out = [title, '', read, '', _INTRO]
+    groups = numbers['groups']
+    singles = _order(dict.fromkeys(c for g in groups for c in g['aggregate'].get(
+        'async_minus', {})))
+    best = [(k, t) for k, t in _BEST if any(k in g['aggregate'] for g in groups)]
+    base = [_BASE] if any(_BASE[0] in g['aggregate'] for g in groups) else []
+    if singles or best or base:
+        out += ['', '## Summary: Async against the single modules', '']
+        out += _head(['preset', 'protocol', 'layouts', 'pooled', 'Async above every single']
+                     + [f'Async - {c}' for c in singles] + [t for _, t in best + base])
+        for g in groups:
+            a = g['aggregate']
+            out.append(_row([g['preset'], g['protocol'], str(len(g['layouts'])), _pooled(a),
+                             _all_counts(a.get('async_all'))]
+                            + [_counts(a.get('async_minus', {}).get(c)) for c in singles]
+                            + [_counts(a.get(k)) for k, _ in best + base]))
+    thesis = [(k, t) for k, t in _THESIS if any(k in g['aggregate'] for g in groups)]
+    if thesis:
+        out += ['', '## Summary: the thesis test', '']
+        out += _head(['preset', 'protocol', 'layouts', 'pooled'] + [t for _, t in thesis])
+        for g in groups:
+            a = g['aggregate']
+            out.append(_row([g['preset'], g['protocol'], str(len(g['layouts'])), _pooled(a)]
+                            + [_counts(a.get(k)) for k, _ in thesis]))
+    conds = _order(dict.fromkeys(c for g in groups for c in g['conditions']))
+    out += ['', '## Summary: final evaluated success over layouts', '']
+    out += _head(['preset', 'protocol', 'pooled'] + conds)
+    for g in groups:
         a = g['aggregate']
-        out.append(_row([g['preset'], g['protocol'], str(len(g['layouts']))]
-                        + [_counts(a.get(k), a['over']) for k, _ in diffs]))
-    for g in numbers['groups']:
-        conds = g['conditions']
-        here = [(k, t) for k, t in _DIFFS if k in g['aggregate']]
-        out += ['', f'## Preset {g["preset"]}, protocol {g["protocol"]}', '']
-        if g.get('singles_from'):
-            out += [f'The single modules are the runs of preset {g["singles_from"]} (the '
-                    'option changes only how modules are chosen: a single-module run is the '
-                    'same run); the last column is this Async minus the Async of '
-                    f'{g["singles_from"]}, paired over seeds.', '']
-        out += [_row(['layout', 'goal hidden', 'seeds'] + conds + [t for _, t in here]),
-                '|---|---|---|' + '---|' * (len(conds) + len(here))]
-        for name, c in g['layouts'].items():
-            cells = [_pm(c['conditions'].get(k)) for k in conds]
-            for k, _ in here:
-                best = f' ({c[k]["best"]})' if k == 'async_best' and k in c else ''
-                cells.append(f'{_pm(c.get(k), True)}{best}{_mark(c.get(k))}')
-            out.append(_row([name, f'{100 * c["hidden_share"]:.1f}%', str(len(c['seeds']))]
-                            + cells))
-        a = g['aggregate']
-        cells = ([_pm(a.get('conditions', {}).get(k)) for k in conds]
-                 + [_pm(a.get(k), True) + _mark(a.get(k)) for k, _ in here])
-        out.append(_row([f'over {_layouts(a["n_layouts"], a["over"])}', '', ''] + cells))
+        cells = []
+        for c in conds:
+            d = a.get('conditions', {}).get(c)
+            cells.append('n/a' if not d else _rate_pm(d) + (
+                f'; {_below(d)} below innate' if d.get('below_innate') else ''))
+        out.append(_row([g['preset'], g['protocol'], _pooled(a)] + cells))
+    for g in groups:
+        out += _group_lines(g)
     out += _divergence_lines(numbers)
     return '\n'.join(out) + '\n'
+
+
+def _group_lines(g: dict) -> list[str]:
+    """The section of one preset and protocol: final success and differences per layout."""
+    conds, a = g['conditions'], g['aggregate']
+    out = ['', f'## Preset {g["preset"]}, protocol {g["protocol"]}', '']
+    if g.get('singles_from'):
+        out += [f'The single modules are the runs of preset {g["singles_from"]} (the '
+                'option changes only how modules are chosen: a single-module run is the '
+                'same run); the last column is this Async minus the Async of '
+                f'{g["singles_from"]}, paired over seeds.', '']
+    below = [c for c in conds if c != 'innate' and any(
+        'below_innate' in cell['conditions'].get(c, {}) for cell in g['layouts'].values())]
+    titles = ['layout', 'goal hidden', 'seeds']
+    for c in conds:
+        titles += [c] + ([f'{c} below innate'] if c in below else [])
+    out += ['Final evaluated success [%]:', ''] + _head(titles)
+    last = f'over {_layouts(a["n_layouts"], a["over"])}'
+    for name, cell in list(g['layouts'].items()) + [(last, None)]:
+        src = cell['conditions'] if cell else a.get('conditions', {})
+        cells = ([name, f'{100 * cell["hidden_share"]:.1f}%', str(len(cell['seeds']))]
+                 if cell else [name, '', ''])
+        for c in conds:
+            cells += [_rate_pm(src.get(c))] + ([_below(src.get(c))] if c in below else [])
+        out.append(_row(cells))
+    singles = list(a.get('async_minus', {}))
+    here = [(k, t) for k, t in _BEST + _THESIS + (_BASE,) if k in a]
+    if not (singles or here):
+        return out
+    titles = (['layout'] + [f'Async - {c}' for c in singles]
+              + (['Async above every single'] if singles else []) + [t for _, t in here])
+    out += ['', 'Differences [points]:', ''] + _head(titles)
+    for name, cell in list(g['layouts'].items()) + [(last, None)]:
+        src = cell or a
+        cells = [name]
+        for c in singles:
+            d = src.get('async_minus', {}).get(c)
+            cells.append(_pm(d, True) + _mark(d))
+        if singles:
+            v = (src.get('async_all') or {}).get('verdict', '')
+            cells.append('**above**' if v == 'above' else ('-' if src.get('async_all')
+                                                             else 'n/a'))
+        for k, _ in here:
+            d = src.get(k)
+            note = ''
+            if cell and d and k == 'async_best':
+                note = f' ({d["best"]})'
+            elif cell and d and k == 'async_best_loo':
+                note = _chosen(d)
+            cells.append(f'{_pm(d, True)}{note}{_mark(d)}')
+        out.append(_row(cells))
+    return out
 
 
 def _draw(numbers: dict, out: Path) -> list[str]:
@@ -369,24 +641,30 @@ def _draw(numbers: dict, out: Path) -> list[str]:
     report is not this one's). Returns the names of the figures drawn."""
     from clis_app.study_figures import ForestRow, forest_plot, hidden_scatter
     drawn = []
-    panels: dict[str, list] = {}
+    panels: dict[str, dict[str, list]] = {}
     for g in numbers['groups']:
-        rows = panels.setdefault(g['protocol'], [])
-        for name, c in g['layouts'].items():
-            ab = c.get('async_best')
-            if ab and ab['mean'] is not None:
-                rows.append(ForestRow(name, ab['mean'], _nan(ab['half']), g['preset']))
-        a = g['aggregate'].get('async_best')
-        if a and a['mean'] is not None and a['layouts'] >= 3:      # an aggregate, not a copy
-            label = ('over generated layouts' if g['aggregate']['over'] == 'generated'
-                     else 'over layouts')
-            rows.append(ForestRow(label, a['mean'], _nan(a['half']), g['preset'],
-                                  aggregate=True))
-    panels = {k: v for k, v in panels.items() if v}
+        rows = panels.setdefault(g['protocol'], {}).setdefault(g['preset'], [])
+        a = g['aggregate']
+        items = [(name, c, False) for name, c in g['layouts'].items()]
+        if a.get('async_all') and a['async_all']['layouts'] >= 3:   # an aggregate, not a copy
+            items.append(('over generated layouts' if a['over'] == 'generated'
+                          else 'over layouts', a, True))
+        for label, c, is_agg in items:
+            above = (c.get('async_all') or {}).get('verdict') == 'above'
+            series = [(f'Async - {m}', d) for m, d in c.get('async_minus', {}).items()]
+            series.append(('Async - best single, leave one out', c.get('async_best_loo')))
+            for what, d in series:
+                if d and d.get('mean') is not None:
+                    rows.append(ForestRow(label, what, d['mean'], _nan(d.get('half')),
+                                          aggregate=is_agg, above=above))
+    panels = {p: {k: v for k, v in by.items() if v} for p, by in panels.items()}
+    panels = {p: by for p, by in panels.items() if by}
     if panels:
         forest_plot(panels, out / 'forest.png',
-                    'Async - best single module: final evaluated success, mean ± 95% CI '
-                    'over seeds, per layout', 'Async - best single [points]')
+                    'Async minus each single module, and minus the best single chosen on the '
+                    'other seeds: final evaluated success, paired over seeds, mean ± 95% CI.\n'
+                    'Shaded: Async above every single module (each of its intervals against '
+                    'a single module above 0)', 'Async - comparator [points]')
         drawn.append('forest.png')
     points = []
     for g in numbers['groups']:
