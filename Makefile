@@ -106,13 +106,13 @@ bench: setup
 reproduce: setup
 	@$(ENV) && clis experiment --preset paper --conditions innate,view,place,sync,async \
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --eval-episodes 5 --out results/paper --resume
-	@$(ENV) && python -m clis_app.claims results/paper
+	@$(ENV) && python -m clis_app.experiments.claims results/paper
 
 # The improved preset (docs/results.md), then its ablation: Async with each change alone.
 reproduce-improved: setup
 	@$(ENV) && clis experiment --preset improved --conditions innate,view,place,sync,async \
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --eval-episodes 5 --out results/improved --resume
-	@$(ENV) && python -m clis_app.claims results/improved
+	@$(ENV) && python -m clis_app.experiments.claims results/improved
 	@$(ENV) && clis experiment --preset improved --ablation --conditions async \
 	  --episodes $(REPRO_EPISODES) --seeds $(REPRO_SEEDS) --eval-every 100 --eval-episodes 4 \
 	  --out results/ablation --resume

@@ -27,11 +27,11 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(HERE.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(HERE.parent / 'src' / 'cr_sim'))
-from clis_app.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
+from clis_app.graph.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 
 def graph_rate(episodes: int, out: Path) -> dict:
-    from clis_app.core.bag import bag_info
+    from clis_app.bags.mcap import bag_info
     bag = out / 'graph'
     t0 = time.monotonic()
     proc = subprocess.run([sys.executable, '-m', 'clis_app.cli', 'run', '--preset', 'paper',
@@ -60,9 +60,9 @@ def _cpu_ticks(pid: int) -> int:
 
 
 def recorder_rate(topics: int, rate: float, seconds: float, out: Path) -> dict:
-    from clis_app.core.bag import bag_info
+    from clis_app.bags.mcap import bag_info
     bag = out / f'load-{topics}x{rate:g}'
-    rec = subprocess.Popen([sys.executable, '-m', 'clis_app.recorder_node', '--ros-args',
+    rec = subprocess.Popen([sys.executable, '-m', 'clis_app.bags.recorder_node', '--ros-args',
                             '-p', f'recorder.path:={bag}', '-p', 'use_sim_time:=false',
                             '-p', 'recorder.topics:=' + ','.join(f'/load/t{k}'
                                                                 for k in range(topics))],

@@ -72,7 +72,7 @@ def core_rates(seconds: float) -> dict:
 
 
 def ros_latencies(trials: int) -> dict:
-    from clis_app.ros_env import apply_ros_env, pick_domain_id
+    from clis_app.graph.ros_env import apply_ros_env, pick_domain_id
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

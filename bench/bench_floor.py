@@ -13,7 +13,7 @@ instants for the behaviour density of (6).
 
 Each run of the workload (``clis experiment``'s: ``--episodes`` learning episodes, then 10
 evaluation episodes per start, no periodic evaluation) is made here by
-:func:`clis_app.core.runner.run_job`, with the two entry points wrapped in a timer
+:func:`clis_app.experiments.runner.run_job`, with the two entry points wrapped in a timer
 (``perf_counter`` around each call); ``--workers`` runs at a time, each in a process of its
 own. Printed per condition: the CPU of a run, the kernels' part of it, and their share; then
 the bound ``CPU / kernels`` over the whole workload (Amdahl's law with the rest at zero).
@@ -50,7 +50,7 @@ CONDITIONS = tuple(WORKLOAD.split(','))
 
 def _run(job: tuple[str, int, int]) -> tuple[str, int, float, float, int]:
     """One run of the workload: ``(condition, seed, CPU s, kernel s, kernel calls)``."""
-    from clis_app.core.runner import JobSpec, run_job
+    from clis_app.experiments.runner import JobSpec, run_job
     import clis_modules.core.localization as localization
 
     condition, seed, episodes = job

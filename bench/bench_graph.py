@@ -54,8 +54,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_le
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
-from clis_app.graph_plan import REALTIME_ABOVE  # noqa: E402
-from clis_app.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
+from clis_app.graph.plan import REALTIME_ABOVE  # noqa: E402
+from clis_app.graph.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 TICK = os.sysconf('SC_CLK_TCK')
 #: Paced runs (``--speed 1``) are measured from this many wall seconds after the first

@@ -44,8 +44,8 @@ HERE = Path(__file__).resolve()
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'cr_sim'))
-from clis_app.graph_plan import REALTIME_PRIORITY as FIFO_PRIORITY  # noqa: E402
-from clis_app.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
+from clis_app.graph.plan import REALTIME_PRIORITY as FIFO_PRIORITY  # noqa: E402
+from clis_app.graph.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 from cr_sim.ros_support.executor import make_executor  # noqa: E402
 from cr_sim.ros_support.lifecycle import realtime  # noqa: E402
 

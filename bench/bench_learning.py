@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 for pkg in ('cr_sim', 'clis_modules', 'clis_learner', 'clis_app'):
     sys.path.insert(0, str(ROOT / 'src' / pkg))
 
-from clis_app.core.runner import Agent, run_episode  # noqa: E402
+from clis_app.experiments.runner import Agent, run_episode  # noqa: E402
 from clis_learner.core.config import load_clis_params  # noqa: E402
 from cr_sim.core.arena import load_arena  # noqa: E402
 from cr_sim.core.sim import Simulator, load_sim_params  # noqa: E402

@@ -44,9 +44,12 @@ GOAL = 3.0
 _COST = r"""
 import json, sys, tempfile, time
 try:
-    from clis_app.core.runner import JobSpec, run_job
-except ImportError:                    # before the application package
-    from clis_learner.core.runner import JobSpec, run_job
+    from clis_app.experiments.runner import JobSpec, run_job
+except ImportError:
+    try:                               # before the application's rooms
+        from clis_app.core.runner import JobSpec, run_job
+    except ImportError:                # before the application package
+        from clis_learner.core.runner import JobSpec, run_job
 n, conditions = int(sys.argv[1]), sys.argv[2].split(',')
 out = {}
 with tempfile.TemporaryDirectory() as d:
@@ -66,8 +69,9 @@ class Build:
 
     def __init__(self, name: str, root: Path, env: dict[str, str]) -> None:
         self.name, self.root, self.env = name, root, env
-        app = root / 'src' / 'clis_app' / 'clis_app' / 'cli.py'
-        self.cli = 'clis_app.cli' if app.is_file() else 'clis_learner.cli'
+        app = root / 'src' / 'clis_app' / 'clis_app'
+        self.cli = ('clis_app.cli' if (app / 'cli.py').is_file()
+                    or (app / 'cli' / '__init__.py').is_file() else 'clis_learner.cli')
         # the workload is the paper preset's: a build whose default is another says so
         config = root / 'src' / 'clis_learner' / 'clis_learner' / 'core' / 'config.py'
         self.paper = (['--preset', 'paper'] if config.is_file()

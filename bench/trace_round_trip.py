@@ -222,7 +222,7 @@ def main() -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_learner'))
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_app'))
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
-    from clis_app.ros_env import apply_ros_env, pick_domain_id
+    from clis_app.graph.ros_env import apply_ros_env, pick_domain_id
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())
     out = Path(args.out or tempfile.mkdtemp(prefix='trace_rtt_'))

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 import re
 
-from clis_app.ros_env import apply_ros_env, pick_domain_id
+from clis_app.graph.ros_env import apply_ros_env, pick_domain_id
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent

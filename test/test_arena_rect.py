@@ -128,9 +128,8 @@ def test_headless_experiment_runs_in_it_with_the_fig4_map(lab, repo, tmp_path):
     assert (out / 'fig4.png').stat().st_size > 1000
     import matplotlib
     matplotlib.use('Agg')
+    from clis_app.experiments import figures
     import matplotlib.pyplot as plt
-
-    from clis_app import figures
     fig, ax = plt.subplots()
     figures.draw_arena(ax, run['arena'])
     assert ax.get_xlim() == (0.0, 3.6) and ax.get_ylim() == (0.0, 2.4), 'the figure is the floor'

@@ -19,7 +19,7 @@ import shutil
 import subprocess
 import sys
 
-from clis_app.core.bag import SEPARATOR, BagReader, BagWriter, bag_topics, definition
+from clis_app.bags.mcap import SEPARATOR, BagReader, BagWriter, bag_topics, definition
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent

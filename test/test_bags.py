@@ -12,7 +12,7 @@ import subprocess
 import sys
 import time
 
-from clis_app.core.bag import (
+from clis_app.bags.mcap import (
     SEPARATOR,
     BagError,
     BagReader,
@@ -36,7 +36,7 @@ def clis(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
 
 
 def start_recorder(path: Path, *ros: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, '-m', 'clis_app.recorder_node', '--ros-args',
+    return subprocess.Popen([sys.executable, '-m', 'clis_app.bags.recorder_node', '--ros-args',
                              '-p', f'recorder.path:={path}', '-p', 'use_sim_time:=false', *ros],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 

@@ -6,11 +6,10 @@ import argparse
 import csv
 from pathlib import Path
 
-from clis_app.graph_plan import plan_graph
+from clis_app.graph import run as graph_cli
+from clis_app.graph.plan import plan_graph
 import pytest
 from test_graph import clis_run, finish
-
-from clis_app import graph_cli
 
 
 def parse(*argv: str) -> argparse.Namespace:

@@ -1,4 +1,4 @@
-"""``python -m clis_app.claims``: the paper's claims from a folder of runs, with 95%
+"""``python -m clis_app.experiments.claims``: the paper's claims from a folder of runs, with 95%
 t-intervals, against figures computed by hand."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from dataclasses import asdict
 import json
 import math
 
-from clis_app.claims import claims, load_runs, main, mean_ci
-from clis_app.core.runner import JobResult
+from clis_app.experiments.claims import claims, load_runs, main, mean_ci
+from clis_app.experiments.runner import JobResult
 import numpy as np
 import pytest
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 
 from clis_app.cli import main
-from clis_app.compare import compare, load_curves
+from clis_app.experiments.compare import compare, load_curves
 import numpy as np
 
 

@@ -10,8 +10,8 @@ import math
 from pathlib import Path
 
 from clis_app.cli import main as clis
-from clis_app.core.runner import JobSpec, run_job
-from clis_app.experiment import ablation_conditions
+from clis_app.experiments.experiment import ablation_conditions
+from clis_app.experiments.runner import JobSpec, run_job
 from clis_learner.core.config import load_clis_params, preset_groups, preset_overrides
 from clis_learner.core.corrections import mixture_density
 from clis_learner.core.updates import (
@@ -231,7 +231,7 @@ def test_periodic_evaluation_leaves_learning_unchanged(tmp_path):
 def test_thesis_solo_evaluation_and_improved_episode(tmp_path):
     import dataclasses
 
-    from clis_app.core.runner import Agent, evaluate
+    from clis_app.experiments.runner import Agent, evaluate
     import yaml
     # starts 0.3 m from the destination, facing it: the solo episodes reach it (or not)
     # depending on the weights, so the successes and durations tell the weights apart

@@ -1,4 +1,4 @@
-"""``python -m clis_app.divergence``: the growth of the importance product, from the
+"""``python -m clis_app.experiments.divergence``: the growth of the importance product, from the
 learner's per-episode diagnostics (docs/results.md, the divergence of (8))."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import csv
 import math
 
-from clis_app.divergence import divergence_rows, main
+from clis_app.experiments.divergence import divergence_rows, main
 
 
 def write(path, rows):

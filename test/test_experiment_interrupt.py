@@ -22,8 +22,10 @@ TINY = ['experiment', '--conditions', 'view', '--episodes', '20', '--block', '5'
         '--train-start', 'starts', '--sim-set', 'episode.time_limit=10.0']
 
 
-@pytest.mark.parametrize('module, name', [('report', '_main'), ('compare', '_main'),
-                                          ('experiment', 'main'), ('doctor', 'run_doctor')])
+@pytest.mark.parametrize('module, name', [('experiments.report', '_main'),
+                                          ('experiments.compare', '_main'),
+                                          ('experiments.experiment', 'main'),
+                                          ('cli.doctor', 'run_doctor')])
 def test_ctrl_c_is_one_line_and_130_for_every_command(monkeypatch, capsys, tmp_path, module,
                                                       name):
     import importlib
@@ -34,7 +36,7 @@ def test_ctrl_c_is_one_line_and_130_for_every_command(monkeypatch, capsys, tmp_p
     argv = {'report': ['report', str(tmp_path)],
             'compare': ['compare', '--a', 'x', '--b', 'y', '--condition', 'view'],
             'experiment': ['experiment', '--out', str(tmp_path / 'x')],
-            'doctor': ['doctor']}[module]
+            'doctor': ['doctor']}[module.rsplit('.', 1)[1]]
     capsys.readouterr()
     try:
         code = clis(argv)
@@ -181,7 +183,7 @@ def test_a_run_process_dies_on_sigterm_whatever_the_parent_handles():
     ``_worker_signals`` gives SIGTERM back its default action."""
     import multiprocessing as mp
 
-    from clis_app.experiment import _worker_signals
+    from clis_app.experiments.experiment import _worker_signals
 
     ctx = mp.get_context('fork')
     old = signal.signal(signal.SIGTERM, lambda signum, frame: None)    # remembered, no more
@@ -208,7 +210,7 @@ def _initialised_then_waits(initializer) -> None:
 
 
 def _spec(tmp_path: Path, index: int = 0):
-    from clis_app.core.runner import JobSpec
+    from clis_app.experiments.runner import JobSpec
     return JobSpec(index=index, label='view', condition='view', overrides={},
                    sim_overrides={}, seed=index, episodes=1, eval_episodes=1, arena=None,
                    run_dir=str(tmp_path))
@@ -242,7 +244,7 @@ def _dies(spec, q) -> None:
 
 
 def test_an_interrupt_kills_every_run_even_one_that_ignores_sigterm(tmp_path, monkeypatch):
-    from clis_app import experiment
+    from clis_app.experiments import experiment
     monkeypatch.setattr(experiment, '_worker', _ignores_sigterm_and_reports)
     t0 = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
@@ -255,7 +257,7 @@ def test_an_interrupt_kills_every_run_even_one_that_ignores_sigterm(tmp_path, mo
 @pytest.mark.parametrize('worker, message', [(_raises, 'ValueError: a run that fails: boom'),
                                              (_dies, 'exit code 3')])
 def test_a_failed_run_stops_the_others_and_says_why(tmp_path, monkeypatch, worker, message):
-    from clis_app import experiment
+    from clis_app.experiments import experiment
     monkeypatch.setattr(experiment, '_worker', worker)
     with pytest.raises(experiment.RunError, match='view seed 0') as err:
         experiment._run_all([_spec(tmp_path, k) for k in range(3)], 1, True,
@@ -267,7 +269,7 @@ def test_a_failed_run_stops_the_others_and_says_why(tmp_path, monkeypatch, worke
 def test_the_eta_weighs_each_runs_episodes_by_their_cost(capsys, monkeypatch):
     """Longest runs go first: an ETA by episodes alone would count the cheap ones left as
     dear as the dear ones done (a study's first ETA was twice its time)."""
-    from clis_app import experiment
+    from clis_app.experiments import experiment
     clock = iter([100.0, 110.0])
     monkeypatch.setattr(experiment.time, 'monotonic', lambda: next(clock))
     progress = experiment.Progress(total_episodes=200, runs=2, cost=[(100, 5.5), (100, 1.0)])

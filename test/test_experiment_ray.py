@@ -11,9 +11,8 @@ import shutil
 import signal
 
 from clis_app.cli import build_parser
+from clis_app.experiments import experiment, ray_backend
 import pytest
-
-from clis_app import experiment, ray_backend
 
 ARGS = ['--conditions', 'innate,place', '--episodes', '60', '--block', '30', '--seeds', '2',
         '--eval-episodes', '1', '--workers', '2', '--quiet']
@@ -154,7 +153,7 @@ def test_killed_ray_worker_is_retried_and_resume_crosses_backends(pool_run, tmp_
 
 
 def test_longest_runs_start_first_and_the_order_is_stable(tmp_path):
-    from clis_app.core.runner import JobSpec
+    from clis_app.experiments.runner import JobSpec
 
     def spec(i, condition, episodes=100):
         return JobSpec(index=i, label=condition, condition=condition, overrides={},

@@ -10,14 +10,13 @@ from pathlib import Path
 import shutil
 
 from clis_app.cli import main as clis
-from clis_app.core.runner import JobResult, arena_dict
+from clis_app.experiments import figures, report
+from clis_app.experiments.runner import JobResult, arena_dict
 from cr_sim.core.arena import load_arena
 from cr_sim.core.sim import load_sim_params
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
-
-from clis_app import figures, report
 
 #: A tiny experiment: 2 learning episodes of View, evaluated before learning (--eval-every 5
 #: is longer than the run) and after it.
@@ -272,7 +271,7 @@ def test_a_run_of_any_length_draws_its_learning(drawn, tmp_path, n):
     episodes.csv."""
     import csv
 
-    from clis_app.run_curve import write_curve
+    from clis_app.graph.curve import write_curve
     rows = synthetic_run('async', 0, n).episodes
     with open(tmp_path / 'episodes.csv', 'w', newline='') as fh:
         w = csv.DictWriter(fh, [k for k in rows[0] if k != 'label'] + ['condition'])

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from clis_app.core.runner import Agent, run_episode
+from clis_app.experiments.runner import Agent, run_episode
 from clis_learner.core.config import load_clis_params, params_hash, preset_overrides
 from clis_modules.core.arbiter import selection_probs, uncertainty
 from cr_sim.core.arena import load_arena
@@ -112,7 +112,7 @@ def test_bad_settings_name_the_key():
 
 
 def test_the_node_graph_refuses_it_before_anything_starts(tmp_path):
-    from clis_app.graph_plan import plan_graph
+    from clis_app.graph.plan import plan_graph
     with pytest.raises(ConfigError, match='headless runner only'):
         plan_graph('async', 0, tmp_path, 1.0, clis_overrides={'arbiter.bonus': KAPPA})
 

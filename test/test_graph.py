@@ -175,8 +175,8 @@ class Recorded:
     host, loses packets: under load a probe may have no episode of the run whole."""
 
     def __init__(self, bag: Path) -> None:
-        from clis_app.core.bag import BagReader
-        from clis_app.recorder_node import message_class
+        from clis_app.bags.mcap import BagReader
+        from clis_app.bags.recorder_node import message_class
         from rclpy.serialization import deserialize_message
         self.msgs: dict[str, list] = defaultdict(list)
         self.seqs: dict[str, list[int]] = defaultdict(list)

@@ -101,7 +101,7 @@ WARM_UP_CHECK = """
 import dataclasses, json, sys
 import numba, numpy as np
 from clis_learner.core.config import load_clis_params
-from clis_app.core.runner import Agent, run_episode
+from clis_app.experiments.runner import Agent, run_episode
 from clis_modules.core.decider import Decider
 from clis_modules.core.modules import arena_map, condition_periods, make_module
 from cr_sim.core.arena import load_arena

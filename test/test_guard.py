@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 
 from clis_app.cli import build_parser
-from clis_app.core.runner import JobSpec, run_job
-from clis_app.run_curve import divergences, summary, write_curve
+from clis_app.experiments.runner import JobSpec, run_job
+from clis_app.graph.curve import divergences, summary, write_curve
 from clis_learner.core.config import DEFAULT_PRESET, preset_overrides
 from clis_learner.core.guard import FACTOR, Divergence, DivergenceGuard
 import pytest

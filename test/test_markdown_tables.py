@@ -10,11 +10,10 @@ import re
 import subprocess
 import sys
 
+from clis_app.experiments import compare, report
 import numpy as np
 import pytest
 from test_experiment_trust import synthetic_run
-
-from clis_app import compare, report
 
 REPO = Path(__file__).resolve().parent.parent
 _SEPARATOR = re.compile(r'^\|?\s*:?-{3,}:?\s*(\|\s*:?-{3,}:?\s*)*\|?\s*$')

@@ -98,7 +98,7 @@ def test_experiment_runs_and_learns_the_plugin_module(installed, tmp_path):
 
 
 def test_clis_run_starts_its_node_which_proposes_at_its_period_and_learns(installed, tmp_path):
-    from clis_app.core.bag import BagReader
+    from clis_app.bags.mcap import BagReader
     from clis_modules.conversions import proposal_from_msg
     from cr_sim.conversions import episode_from_msg
     from diagnostic_msgs.msg import DiagnosticArray

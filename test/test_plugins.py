@@ -17,7 +17,7 @@ import shutil
 import subprocess
 import sys
 
-from clis_app.core.runner import Agent, JobSpec, run_episode, run_job
+from clis_app.experiments.runner import Agent, JobSpec, run_episode, run_job
 from clis_learner.core.config import load_clis_params
 from clis_modules.core import plugin as plugin_api
 from clis_modules.core.modules import (
@@ -364,7 +364,7 @@ def test_the_percept_carries_every_sensor_as_the_observation_has_it():
 
 
 def test_graph_plan_starts_any_module_as_the_generic_node(tmp_path):
-    from clis_app.graph_plan import plan_graph
+    from clis_app.graph.plan import plan_graph
     plan = plan_graph('async:innate+wall', 0, tmp_path, 0.0)
     wall = plan.by_name('wall')
     assert (wall.package, wall.executable, wall.remaps) == ('clis_modules', 'module',
@@ -379,7 +379,7 @@ def test_graph_plan_takes_the_periods_and_selection_of_the_params_files(tmp_path
     """The nodes read ``--params``; the simulator's lockstep instants and agent stream must
     be those too (they came from config/clis.yaml alone: a period override deadlocked the
     lockstep at instants no module decided on)."""
-    from clis_app.graph_plan import plan_graph
+    from clis_app.graph.plan import plan_graph
     sim = plan_graph('async:innate+wall', 0, tmp_path, 0.0, clis_overrides={
         'wall.period': 1.0, 'arbiter.selection': 'decision'}).by_name('sim')
     assert sim.params['node.lockstep_periods'] == [0.25, 1.0]
@@ -389,7 +389,12 @@ def test_graph_plan_takes_the_periods_and_selection_of_the_params_files(tmp_path
 def test_the_recorded_topics_are_those_of_the_conditions_modules():
     """The recorder subscribes from its start to the topics of its condition's modules (and
     the live view serves them): every instance's, none of another condition's."""
-    from clis_app.recorder_node import GRAPH_TOPICS, LATCHED_TOPICS, graph_topics, latched_topics
+    from clis_app.bags.recorder_node import (
+        GRAPH_TOPICS,
+        LATCHED_TOPICS,
+        graph_topics,
+        latched_topics,
+    )
     params = load_clis_params()
     assert not any(t.split('/')[0] in ('innate', 'view', 'place', 'wall') for t in GRAPH_TOPICS)
     four = graph_topics('async:innate+view+place+wall', params)

@@ -11,7 +11,7 @@ import subprocess
 import sys
 import textwrap
 
-from clis_app.graph_plan import plan_graph
+from clis_app.graph.plan import plan_graph
 from cr_sim.ros_support import lifecycle
 from cr_sim.ros_support.lifecycle import realtime
 import pytest

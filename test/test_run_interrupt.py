@@ -176,8 +176,8 @@ def test_a_ctrl_c_swallowed_while_clis_run_starts_still_stops_it(sandbox, monkey
     """A Ctrl-C whose KeyboardInterrupt is lost before the graph's handler is installed (it
     landed in a gc callback while ``clis run`` imported its modules: the run then learned all
     its episodes and exited 0) still stops the run: ``clis`` remembers it from its start
-    (``clis_app.ctrl_c``)."""
-    import clis_app.graph_cli as graph_cli
+    (``clis_app.cli.ctrl_c``)."""
+    import clis_app.graph.run as graph_cli
     params = sandbox / 'short.yaml'
     params.write_text(PARAMS)
     out = sandbox / 'run'

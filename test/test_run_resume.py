@@ -15,7 +15,7 @@ from pathlib import Path
 import subprocess
 import sys
 
-from clis_app.graph_cli import _keep_rows_until
+from clis_app.graph.run import _keep_rows_until
 import numpy as np
 import pytest
 

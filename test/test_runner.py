@@ -6,7 +6,7 @@ import csv
 import json
 
 from clis_app.cli import main as clis
-from clis_app.core.runner import Agent, JobSpec, place_selection_map, run_episode, run_job
+from clis_app.experiments.runner import Agent, JobSpec, place_selection_map, run_episode, run_job
 from clis_learner.core.config import load_clis_params, preset_overrides
 from cr_sim.core.arena import load_arena
 from cr_sim.core.sim import Simulator, load_sim_params

@@ -11,12 +11,12 @@ from pathlib import Path
 import shutil
 
 from clis_app.cli import main as clis
+from clis_app.study import report as study_report
+from clis_app.study import study
 from cr_sim.core.params import config_dir
 import pytest
 from test_markdown_tables import bad_rows
 import yaml
-
-from clis_app import study, study_report
 
 #: A study of a few seconds: short episodes, two layouts, the thesis' conditions, 3 seeds.
 MICRO = {'name': 'micro', 'arenas': ['mine.yaml', {'generated': {'seeds': [4]}}],

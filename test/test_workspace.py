@@ -9,8 +9,8 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 
-from clis_app.doctor import exchange
-from clis_app.ros_env import PROFILE_VAR, apply_ros_env, loopback_profile
+from clis_app.cli.doctor import exchange
+from clis_app.graph.ros_env import PROFILE_VAR, apply_ros_env, loopback_profile
 import pytest
 from ros_util import in_netns, netns_available, netns_tx_packets
 
@@ -110,8 +110,8 @@ def test_default_dds_sends_nothing_off_loopback(network):
     the loopback is one counted interface: the default (loopback) profile sends nothing
     through it, whatever else the host sends; ``network=True`` (no profile) does, which shows
     the count sees DDS traffic."""
-    code = ('from clis_app.doctor import exchange\n'
-            'from clis_app.ros_env import apply_ros_env\n'
+    code = ('from clis_app.cli.doctor import exchange\n'
+            'from clis_app.graph.ros_env import apply_ros_env\n'
             f'apply_ros_env(network={network})\n'
             'ok, out, _ = exchange(timeout=30, want=20)\n'
             'print(out)\n'
@@ -137,7 +137,7 @@ def test_clis_doctor_passes(repo):
 
 
 def test_picked_domain_ids_are_exclusive_while_held():
-    from clis_app.ros_env import DOMAIN_RANGE, lock_path, pick_domain_id
+    from clis_app.graph.ros_env import DOMAIN_RANGE, lock_path, pick_domain_id
     a, b = pick_domain_id(), pick_domain_id()
     assert a != b and all(DOMAIN_RANGE[0] <= d <= DOMAIN_RANGE[1] for d in (a, b))
     # another process cannot claim them while this one lives

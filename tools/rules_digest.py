@@ -41,9 +41,12 @@ LATER_COLUMNS = ('grow_share_', 'c_max_', 'diverged')
 def digest(condition: str, overrides: dict, run_dir: str) -> str:
     """The digest of ``condition``'s rows: seed 3, 10 episodes of at most 20 s from A-E."""
     try:
-        from clis_app.core.runner import JobSpec, run_job
-    except ImportError:                     # a commit from before the application package
-        from clis_learner.core.runner import JobSpec, run_job
+        from clis_app.experiments.runner import JobSpec, run_job
+    except ImportError:
+        try:                                # a commit from before the application's rooms
+            from clis_app.core.runner import JobSpec, run_job
+        except ImportError:                 # a commit from before the application package
+            from clis_learner.core.runner import JobSpec, run_job
     spec = JobSpec(index=0, label=condition, condition=condition, overrides=overrides,
                    sim_overrides={'episode.time_limit': 20.0}, seed=3, episodes=10,
                    eval_episodes=0, arena=None, run_dir=run_dir, block=5,

@@ -7,7 +7,7 @@
     python tools/study_why.py studies/layouts practice
 
 ``camera``: on config/arena.yaml, each condition's final evaluated success and Async - best
-single (chosen on the same seeds, and on the other seeds: clis_app.study_report) against the
+single (chosen on the same seeds, and on the other seeds: clis_app.study.report) against the
 destination's detection range (``sensors.destination_range`` of the presets' ``sim_set``; a
 run without it sees the destination up to ``camera_range``), per protocol; with ``--png`` the
 same as a figure.
@@ -57,13 +57,13 @@ STARTS = 'ABCDE'
 
 
 def _summaries(out: Path) -> list[dict]:
-    from clis_app.study_report import study_summaries
+    from clis_app.study.report import study_summaries
     return study_summaries(out)[0]
 
 
 def _ci(values: list[float]) -> tuple[float, float]:
     """Mean and half-width of the 95% t-interval (NaN below 3 values)."""
-    from clis_app.claims import mean_ci
+    from clis_app.experiments.claims import mean_ci
     return mean_ci(values)
 
 
@@ -76,7 +76,7 @@ def _pm(m: float, h: float, sign: bool = False) -> str:
 
 def _rate_pm(values: list[float]) -> str:
     """A success rate in %: its mean and [95% t-interval clipped to [0, 100]]."""
-    from clis_app.study_report import rate_interval
+    from clis_app.study.report import rate_interval
     r = rate_interval(values)
     if not math.isfinite(r['mean']):
         return 'n/a'
@@ -89,7 +89,7 @@ def _rate(d: dict) -> float:
 
 
 def camera(out: Path, png: Path | None) -> None:
-    from clis_app.study_report import leave_one_out_best, rate_interval
+    from clis_app.study.report import leave_one_out_best, rate_interval
     from cr_sim.core.sim import load_sim_params
     default = load_sim_params().sensors.camera_range
     cells: dict[tuple[str, float], dict[str, dict[int, float]]] = defaultdict(
@@ -166,7 +166,7 @@ def _camera_figure(curves: dict, png: Path, default: float) -> None:
 
 
 def starts(out: Path) -> None:
-    from clis_app.study_report import below_level
+    from clis_app.study.report import below_level
     # (protocol, condition) -> start -> per-layout means
     per: dict[tuple[str, str], dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     runs: dict[tuple, list[dict]] = defaultdict(list)
@@ -253,7 +253,7 @@ def _start_probs(d: dict, out: Path, draws: int = 5) -> dict[str, list[float]] |
     """Pr(i | x_0) at each start of the Async run ``d`` with its checkpoint's parameters."""
     import re
 
-    from clis_app.core.runner import Agent
+    from clis_app.experiments.runner import Agent
     from clis_learner.core.checkpoint import load_checkpoint
     from clis_learner.core.config import load_clis_params, preset_overrides
     from clis_modules.core.decider import Percept
@@ -336,7 +336,7 @@ def _practice_run(job: tuple[str, str, int, int, str]) -> dict:
     """One learning run of ``condition`` on ``arena`` (wander, improved): per episode, whether
     it started where the straight line to the goal is blocked, who acted, and the outcome."""
     arena_path, condition, seed, episodes, label = job
-    from clis_app.core.runner import Agent, run_episode
+    from clis_app.experiments.runner import Agent, run_episode
     from clis_learner.core.config import load_clis_params, preset_overrides
     from cr_sim.core.arena import load_arena
     from cr_sim.core.geometry import segments_blocked

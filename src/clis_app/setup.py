@@ -24,8 +24,8 @@ setup(
     entry_points={
         'console_scripts': [
             'clis = clis_app.cli:main',
-            'recorder = clis_app.recorder_node:main',
-            'foxglove = clis_app.foxglove_node:main',
+            'recorder = clis_app.bags.recorder_node:main',
+            'foxglove = clis_app.live.foxglove_node:main',
         ],
     },
 )

@@ -1,6 +1,6 @@
 """The learner's topics into its :class:`~clis_learner.core.stream.EpisodeStream`: the one
 routing of the live learner node (:mod:`clis_learner.learner_node`) and of ``clis learn``
-reading a bag (:func:`clis_app.bags.feed_stream`).
+reading a bag (:func:`clis_app.bags.commands.feed_stream`).
 
 Each module's ``NAME/proposal`` and ``NAME/observation``, the arbiter's ``arbiter/action``
 and ``arbiter/selection``, the robot's ``reward`` (:data:`RECORDS`, :func:`feed_record`) and

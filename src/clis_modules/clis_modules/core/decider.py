@@ -6,7 +6,7 @@
 its value ``V_i(x) = w_i^T b_i(x)`` (1)(2), by which the arbiter selects (3).
 
 :class:`Decider` is that step, shared by the two schedulers of the project: the headless runner
-(:mod:`clis_app.core.runner`, a discrete-event loop at the simulator tick) and the module
+(:mod:`clis_app.experiments.runner`, a discrete-event loop at the simulator tick) and the module
 nodes (:mod:`clis_modules.module_node`, an rclpy timer of period ``tau_i``). It holds what a
 module carries between decisions: for a module with a ``motion`` hook (the place module), the
 odometry since its last decision, which that hook applies (the motion update of its Markov

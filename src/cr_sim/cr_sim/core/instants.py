@@ -7,7 +7,7 @@ tick ``k`` with ``k mod n_i = 0``, ``n_i = round(tau_i / dt)`` (at least 1), rea
 of that tick (docs/design.md §6). The headless runner counts ticks itself; the graph's nodes see
 stamps ``t`` of a sim clock that runs on across episodes, and :meth:`DecisionClock.tick` turns
 them back into the tick of the running episode (a stamp off the tick grid by more than
-:data:`TOL` is no tick). Users: the runner (:mod:`clis_app.core.runner`), the module node
+:data:`TOL` is no tick). Users: the runner (:mod:`clis_app.experiments.runner`), the module node
 (its decision grid), the arbiter's lockstep barrier (:mod:`clis_modules.core.lockstep`), the
 simulator's lockstep gate (:mod:`cr_sim.core.gate`), the learner's episode stream
 (:mod:`clis_learner.core.stream`) and the replayed random streams

@@ -1,6 +1,6 @@
 """``clis doctor``: what ROS/DDS setup is in force, and whether two processes can talk.
 
-The check starts two separate OS processes (``python -m clis_app.doctor talker`` and
+The check starts two separate OS processes (``python -m clis_app.cli.doctor talker`` and
 ``... listener``) that exchange ``std_msgs/String`` over real rclpy and Fast DDS, in the
 environment ``clis`` configured (loopback-only profile, own ROS_DOMAIN_ID).
 """
@@ -70,7 +70,7 @@ def exchange(env: dict[str, str] | None = None, timeout: float = 20.0,
         Wall time until the listener had its messages.
     """
     env = dict(os.environ if env is None else env)
-    cmd = [sys.executable, '-m', 'clis_app.doctor']
+    cmd = [sys.executable, '-m', 'clis_app.cli.doctor']
     t0 = time.monotonic()
     talker = subprocess.Popen(cmd + ['talker', '--timeout', str(timeout + 5)], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -94,7 +94,7 @@ def exchange(env: dict[str, str] | None = None, timeout: float = 20.0,
 
 def run_doctor() -> int:
     """Print the setup in force and the result of the two-process exchange."""
-    from clis_app.ros_env import describe
+    from clis_app.graph.ros_env import describe
 
     print('clis doctor')
     for key, value in describe().items():

@@ -1,7 +1,7 @@
 """``clis experiment``: the paper's experiments (Fig. 3-5), headless, over several seeds.
 
 Each (condition, seed) is one *run*: ``episodes`` learning episodes driven by the headless
-runner (:mod:`clis_app.core.runner`), then evaluation episodes from each start point with
+runner (:mod:`clis_app.experiments.runner`), then evaluation episodes from each start point with
 learning off. Runs go to parallel worker processes on this machine (``--backend process``) or
 to Ray tasks (``--backend ray``: a local Ray instance, or a cluster with ``--address``; see
 docs/scale.md); each run's results are written atomically to ``OUT/runs/`` as soon as it
@@ -23,8 +23,8 @@ rules exactly as printed, whose values diverge in most runs: the divergence guar
 from __future__ import annotations
 
 import argparse
-import csv
 from dataclasses import dataclass
+from functools import partial
 import json
 import multiprocessing as mp
 import os
@@ -36,13 +36,15 @@ import time
 from typing import Any
 
 from clis_learner.core.config import DEFAULT_PRESET
-from clis_modules.core.plugin import parse_condition as parse_modules
+from clis_modules.core.plugin import parse_condition
 from cr_sim.core.arena import load_arena
 from cr_sim.core.starts import draw_start
 import numpy as np
 
-from clis_app.cli_help import HelpFormatter
-from clis_app.core.runner import JobResult, JobSpec, run_job, warm_up
+from clis_app import files
+from clis_app.cli.errors import fail
+from clis_app.cli.help import HelpFormatter
+from clis_app.experiments.runner import JobResult, JobSpec, run_job, warm_up
 
 #: Where the runs execute (``--backend``).
 BACKENDS = ('process', 'ray')
@@ -58,7 +60,7 @@ def _cost(condition: str) -> float:
     if condition in _COST:
         return _COST[condition]
     try:
-        return sum(_COST.get(m, 1.0) for m in parse_modules(condition).modules)
+        return sum(_COST.get(m, 1.0) for m in parse_condition(condition).modules)
     except ValueError:
         return 1.0
 
@@ -88,13 +90,13 @@ examples:
 """
 
 
-def parse_condition(spec: str) -> tuple[str, dict[str, Any]]:
-    """``'async@common.beta=200@learner.resample=zoh'`` -> ``('async', {...})``; the condition
-    is ``TIMING:MODULE+MODULE...`` or a paper name (:func:`clis_modules.core.plugin.
-    parse_condition`)."""
+def parse_variant(spec: str) -> tuple[str, dict[str, Any]]:
+    """A variant, a condition with parameter overrides:
+    ``'async@common.beta=200@learner.resample=zoh'`` -> ``('async', {...})``. The condition is
+    parsed by the one condition parser, :func:`clis_modules.core.plugin.parse_condition`."""
     name, *sets = spec.strip().split('@')
     try:
-        parse_modules(name)
+        parse_condition(name)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(f'{exc} (variants as CONDITION@key=value)') from None
     overrides = {}
@@ -264,10 +266,8 @@ def _worker(spec: JobSpec, q) -> str:
     return str(path)
 
 
-def _fail(message: str, code: int = 2) -> int:
-    """Print ``message`` as one line (a YAML error's own lines joined) and return ``code``."""
-    print(f'clis experiment: {" ".join(str(message).split())}', file=sys.stderr)
-    return code
+#: ``clis experiment: MESSAGE`` on one line, exit code 2 (:func:`clis_app.cli.errors.fail`)
+_fail = partial(fail, 'experiment')
 
 
 def main(args: argparse.Namespace) -> int:
@@ -297,7 +297,7 @@ def main(args: argparse.Namespace) -> int:
             conditions.append('async')
             with_preset.append(True)
     try:
-        parsed = [parse_condition(c) for c in conditions]
+        parsed = [parse_variant(c) for c in conditions]
     except argparse.ArgumentTypeError as exc:
         return _fail(str(exc))
     if args.eval_every < 0:
@@ -363,7 +363,7 @@ def main(args: argparse.Namespace) -> int:
                 f'{"; ".join(diffs)}{more}. Its results are not those of this command: give '
                 f'a new --out, or rerun without --resume to redo the runs in {out}')
     runs_dir.mkdir(parents=True, exist_ok=True)
-    _atomic_write_text(out / 'experiment.json', json.dumps({
+    files.write_text(out / 'experiment.json', json.dumps({
         'argv': sys.argv, 'conditions': conditions, 'labels': labels,
         'episodes': args.episodes,
         'seeds': list(range(args.first_seed, args.first_seed + args.seeds)),
@@ -378,7 +378,7 @@ def main(args: argparse.Namespace) -> int:
     todo = longest_first(todo)
     if todo and args.backend == 'ray':
         try:
-            from clis_app.ray_backend import run_ray
+            from clis_app.experiments.ray_backend import run_ray
             run_ray(todo, args.workers, args.address,
                     Progress(total_episodes=sum(s.episodes for s in todo), runs=len(todo),
                              quiet=args.quiet, cost=job_costs(todo)))
@@ -400,7 +400,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _finish(out: Path, results: list[JobResult], wall: float | None) -> int:
     """Merge the runs, draw the figures, print the table."""
-    from clis_app import figures
+    from clis_app.experiments import figures
     summary = merge(results, out, wall_seconds=wall)
     figures.draw_all(out, results, summary)
     took = f' in {wall / 60:.1f} min' if wall is not None else ''
@@ -475,7 +475,7 @@ def figures_only(out: Path) -> int:
     """``--figures-only``: merge and draw the runs that ``OUT/experiment.json`` lists, with
     the settings they were made with (the other flags are not used); writes no
     experiment.json."""
-    from clis_app.core.runner import result_path
+    from clis_app.experiments.runner import result_path
     try:
         exp = json.loads((out / 'experiment.json').read_text())
     except FileNotFoundError:
@@ -598,22 +598,9 @@ def _worker_signals() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + '.tmp')
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def _write_csv(path: Path, rows: list[dict]) -> None:
-    if not rows:
-        return
-    fields = list(dict.fromkeys(k for row in rows for k in row))
-    tmp = path.with_suffix('.csv.tmp')
-    with open(tmp, 'w', newline='') as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields)
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, path)
+    if rows:
+        files.write_csv(path, rows)
 
 
 def merge(results: list[JobResult], out: Path, wall_seconds: float | None) -> dict:
@@ -653,7 +640,7 @@ def merge(results: list[JobResult], out: Path, wall_seconds: float | None) -> di
         table.append(f'{label:28s} {len(runs):5d} {curves[:, 0].mean():13.1f} '
                      f'{curves[:, -1].mean():12.1f} {eval_success:12.2f} {eval_time:11.1f}')
     summary = {'conditions': by_label, 'wall_seconds': wall_seconds, 'table': table}
-    _atomic_write_text(out / 'summary.json', json.dumps(summary, indent=2))
+    files.write_text(out / 'summary.json', json.dumps(summary, indent=2))
     return summary
 
 

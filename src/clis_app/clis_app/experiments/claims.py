@@ -1,4 +1,4 @@
-"""``python -m clis_app.claims OUT``: the paper's Fig. 3a/3b/3c/5 claims, measured.
+"""``python -m clis_app.experiments.claims OUT``: the paper's Fig. 3a/3b/3c/5 claims, measured.
 
 Reads the runs of a ``clis experiment`` folder (``OUT/runs/*.json``, one per condition and
 seed; the conditions ``innate``, ``view``, ``place``, ``sync`` and ``async`` without ``@``
@@ -28,7 +28,7 @@ import sys
 import numpy as np
 from scipy import stats
 
-from clis_app.core.runner import JobResult
+from clis_app.experiments.runner import JobResult
 
 __all__ = ['load_runs', 'mean_ci', 'claims', 'main']
 
@@ -242,7 +242,7 @@ def markdown(rows: list[tuple[str, str, str]], runs: dict[str, list[JobResult]])
 
 
 def main(args: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog='python -m clis_app.claims',
+    p = argparse.ArgumentParser(prog='python -m clis_app.experiments.claims',
                                 description=__doc__.split('\n\n')[0])
     p.add_argument('out', type=Path, help='a clis experiment folder (its runs/)')
     a = p.parse_args(args)

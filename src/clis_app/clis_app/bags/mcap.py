@@ -39,6 +39,8 @@ from typing import Any
 
 import yaml
 
+from clis_app import files
+
 __all__ = ['BagError', 'BagWriter', 'BagReader', 'BagMessage', 'TopicInfo', 'BagInfo',
            'METADATA_VERSION', 'bag_topics', 'definition', 'message_definition', 'type_hash',
            'qos_yaml', 'parse_qos_yaml', 'bag_info', 'format_info', 'mcap_path']
@@ -496,12 +498,7 @@ def metadata_dict(topics: Mapping[str, TopicInfo], file_name: str, compression: 
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f'.{path.name}.tmp')
-    with open(tmp, 'w') as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    files.write_text(path, text, fsync=True)
 
 
 # ---------------------------------------------------------------------------- reader

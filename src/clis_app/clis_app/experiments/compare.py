@@ -45,7 +45,7 @@ def compare(a: dict[str, np.ndarray], b: dict[str, np.ndarray], block: int
             ) -> list[dict[str, float]]:
     """Per block of ``block`` episodes (over the episodes every run has): mean and 95%
     half-width of A and B, overlap of the intervals, Welch's p."""
-    from clis_app.figures import band
+    from clis_app.experiments.figures import band
     n = min(len(c) for c in [*a.values(), *b.values()])
     n_blocks = n // block
     if n_blocks == 0:
@@ -86,7 +86,7 @@ def _pm(mean: float, half: float) -> str:
 
 def plot(rows: list[dict[str, float]], a_name: str, b_name: str, title: str,
          path: Path) -> None:
-    from clis_app.figures import _save, plt
+    from clis_app.experiments.figures import _save, plt
     x = np.array([(r['from'] + r['to']) / 2 for r in rows])
     fig, ax = plt.subplots(figsize=(5, 3.2))
     for key, name, colour in (('a', a_name, 'tab:blue'), ('b', b_name, 'tab:orange')):
@@ -139,7 +139,7 @@ def _main(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from clis_app.cli_help import HelpFormatter
+    from clis_app.cli.help import HelpFormatter
     p = sub.add_parser('compare', help='compare two sets of runs block by block (95%% bands)',
                        description=__doc__, formatter_class=HelpFormatter)
     p.add_argument('--a', type=Path, nargs='+', required=True, help='folders of set A')

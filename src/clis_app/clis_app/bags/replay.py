@@ -39,8 +39,8 @@ def replay(args: argparse.Namespace) -> int:
     from rclpy.serialization import serialize_message
     from rosgraph_msgs.msg import Clock
 
-    from clis_app.core.bag import BagError, BagReader, bag_topics
-    from clis_app.recorder_node import message_class, qos_from_dict
+    from clis_app.bags.mcap import BagError, BagReader, bag_topics
+    from clis_app.bags.recorder_node import message_class, qos_from_dict
 
     if not args.rate > 0:
         print(f'clis replay: --rate {args.rate}: must be > 0', file=sys.stderr)

@@ -15,7 +15,7 @@ uses ``config/fastdds_recorder.xml`` (UDP loopback, 4 MiB receive buffer: sample
 kernel while the recorder waits for a core; over shared memory a starved recorder lost them).
 
 The bag is the folder ``recorder.path`` (``NAME_0.mcap`` + ``metadata.yaml``, see
-:mod:`clis_app.core.bag`). Every ``recorder.flush_interval`` s of wall time the open chunk is
+:mod:`clis_app.bags.mcap`). Every ``recorder.flush_interval`` s of wall time the open chunk is
 written out and ``metadata.yaml`` refreshed, so a crash loses at most that interval; Ctrl-C
 (SIGINT/SIGTERM) finishes the file (summary, indexes). ``recorder.on_exists: number`` records
 into ``PATH.1``, ``PATH.2``... when PATH holds a bag already (a restarted recorder under
@@ -43,8 +43,8 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
-from clis_app.core.bag import BagError, BagWriter, qos_dict
-from clis_app.ros_env import RECORDER_PROFILE_NAME, use_profile
+from clis_app.bags.mcap import BagError, BagWriter, qos_dict
+from clis_app.graph.ros_env import RECORDER_PROFILE_NAME, use_profile
 
 __all__ = ['RecorderParams', 'RecorderNode', 'GRAPH_TOPICS', 'LATCHED_TOPICS', 'graph_topics',
            'latched_topics', 'qos_to_dict',
@@ -168,7 +168,7 @@ class _Polled(CallbackGroup):
 
 
 class RecorderNode(GraphNode):
-    """Raw subscriptions into a :class:`~clis_app.core.bag.BagWriter` (module docstring)."""
+    """Raw subscriptions into a :class:`~clis_app.bags.mcap.BagWriter` (module docstring)."""
 
     control_path = False                    # records: never real-time
 

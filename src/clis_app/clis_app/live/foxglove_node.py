@@ -8,9 +8,9 @@ in the Foxglove app (Open connection, ``ws://127.0.0.1:8765``) with the layout
 ``config/foxglove_layout.json``: docs/foxglove.md.
 
 Each topic is one channel with the bag's schema (encoding ``ros2msg``, named ``pkg/msg/Type``,
-the text of :func:`clis_app.core.bag.message_definition`) and the bag's payloads: the
+the text of :func:`clis_app.bags.mcap.message_definition`) and the bag's payloads: the
 serialized CDR bytes as they came off the wire, never decoded. It serves the topics the
-recorder records (:func:`clis_app.recorder_node.graph_topics` at start, any other topic of
+recorder records (:func:`clis_app.bags.recorder_node.graph_topics` at start, any other topic of
 the graph as it appears, looked for every ``foxglove.discovery_period`` s; or only
 ``foxglove.topics``). The node subscribes *raw* to a topic only while a client subscribes to
 its channel (an open Foxglove costs the graph what its panels show), and always to the
@@ -73,8 +73,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
-from clis_app.core.bag import BagError, message_definition
-from clis_app.recorder_node import EXCLUDED, graph_topics, latched_topics, message_class
+from clis_app.bags.mcap import BagError, message_definition
+from clis_app.bags.recorder_node import EXCLUDED, graph_topics, latched_topics, message_class
 from cr_sim import conversions as rconv
 
 __all__ = ['FoxgloveParams', 'FoxgloveNode', 'CONFIG_FILE', 'DEFAULT_PORT', 'HOST', 'PATH_TOPIC',
@@ -589,7 +589,7 @@ def plan_live_view(plan: Any, args: Any) -> str | None:
     """Add the live view to the children of a ``clis run`` (``--foxglove PORT``): one more
     process, up before the robot interface and stopped last (as the recorder). An error text
     for a bad port or ``--single-process``; else None."""
-    from clis_app.graph_plan import Child
+    from clis_app.graph.plan import Child
     if not 1 <= args.foxglove <= 65535:
         return f'--foxglove {args.foxglove}: a TCP port in [1, 65535]'
     if getattr(args, 'single_process', False):

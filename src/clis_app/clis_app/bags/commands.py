@@ -1,10 +1,10 @@
 """``clis record``, ``clis replay``, ``clis learn``, ``clis bag info``: runs as MCAP bags.
 
 A bag is a rosbag2 folder (``NAME_0.mcap`` + ``metadata.yaml``) that ``ros2 bag info/play``,
-Foxglove and PlotJuggler open (:mod:`clis_app.core.bag`). ``clis run --record bags/NAME``
-records a run with the ``recorder`` node (:mod:`clis_app.recorder_node`); ``clis record``
+Foxglove and PlotJuggler open (:mod:`clis_app.bags.mcap`). ``clis run --record bags/NAME``
+records a run with the ``recorder`` node (:mod:`clis_app.bags.recorder_node`); ``clis record``
 runs that node on its own. ``clis replay`` republishes a bag with its recorded timing and QoS
-(:mod:`clis_app.replay`). ``clis learn`` trains the modules from the episodes of bags
+(:mod:`clis_app.bags.replay`). ``clis learn`` trains the modules from the episodes of bags
 through the learner node's own path: the messages decoded by the same conversions, fed in
 recorded order into the same :class:`~clis_learner.core.stream.EpisodeStream` (stream buffer,
 episode memory, :class:`~clis_learner.core.learner.Learner`); the checkpoint it writes is what
@@ -98,7 +98,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 # ---------------------------------------------------------------------------- info / record
 
 def _info(args: argparse.Namespace) -> int:
-    from clis_app.core.bag import BagError, bag_info, format_info
+    from clis_app.bags.mcap import BagError, bag_info, format_info
     try:
         info = bag_info(args.bag)
     except (BagError, OSError) as exc:
@@ -109,7 +109,7 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
-    from clis_app import recorder_node
+    from clis_app.bags import recorder_node
     out = args.out or Path('bags') / f'record-{time.strftime("%Y%m%d-%H%M%S")}'
     print(f'clis record: into {out}, ROS_DOMAIN_ID {os.environ.get("ROS_DOMAIN_ID")}; Ctrl-C '
           'finishes the bag', file=sys.stderr, flush=True)
@@ -125,14 +125,14 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from clis_app.replay import replay
+    from clis_app.bags.replay import replay
     return replay(args)
 
 
 # ---------------------------------------------------------------------------- learn
 
 def feed_stream(stream: Any, messages: Iterable[Any], namespace: str = '/') -> Iterator[Any]:
-    """Feed a bag's messages (:class:`~clis_app.core.bag.BagMessage`, recorded order) to an
+    """Feed a bag's messages (:class:`~clis_app.bags.mcap.BagMessage`, recorded order) to an
     :class:`~clis_learner.core.stream.EpisodeStream` through the learner node's routing
     (:mod:`clis_learner.stream_topics`); yield each closed episode
     (:class:`~clis_learner.core.stream.Closed`). An episode that ended is closed at the next
@@ -182,7 +182,7 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
 
     Returns a summary: ``{'episodes': learned, 'skipped': not learned, 'version': ...,
     'condition': ..., 'damaged': [messages]}``. Raises ValueError (bad input) or
-    :class:`~clis_app.core.bag.BagError` (a bag that cannot be opened).
+    :class:`~clis_app.bags.mcap.BagError` (a bag that cannot be opened).
     """
     from clis_learner.core.checkpoint import load_checkpoint, save_checkpoint
     from clis_learner.core.config import (
@@ -199,7 +199,7 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
     from cr_sim.core.arena import load_arena
     from cr_sim.core.params import config_dir, ros_parameters
 
-    from clis_app.core.bag import BagError, BagReader, bag_info
+    from clis_app.bags.mcap import BagError, BagReader, bag_info
 
     readers = [BagReader(b) for b in bags]
     first = readers[0]
@@ -272,7 +272,7 @@ def _learn(args: argparse.Namespace) -> int:
     from clis_learner.core.checkpoint import CheckpointError
     from cr_sim.core.params import ConfigError
 
-    from clis_app.core.bag import BagError
+    from clis_app.bags.mcap import BagError
     for b in args.bags:
         if not b.exists():
             print(f'clis learn: {b}: no such bag', file=sys.stderr)

@@ -22,8 +22,8 @@ def write_curve(out: Path, block: int, preset: str = '') -> tuple[Path, Path] | 
     """``OUT/curve.csv`` and ``OUT/curve.png`` from ``OUT/episodes.csv`` (learned episodes):
     successes per block and the share of time each module acted, the divergences the guard
     reported marked; the title names ``preset``. None without episodes."""
-    from clis_app import figures
-    from clis_app.core.runner import JobResult
+    from clis_app.experiments import figures
+    from clis_app.experiments.runner import JobResult
     path = out / 'episodes.csv'
     if not path.is_file():
         return None

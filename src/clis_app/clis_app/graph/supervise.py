@@ -1,10 +1,10 @@
 """``clis run``'s children as processes: started, watched, restarted, stopped.
 
-:class:`Supervisor` starts each :class:`~clis_app.graph_plan.Child` as its ``ros2 run``
+:class:`Supervisor` starts each :class:`~clis_app.graph.plan.Child` as its ``ros2 run``
 executable (its output to ``OUT/logs/NAME.log``), restarts a module, the arbiter or the
 learner that died (the learner from its checkpoint), and stops them all in order: the robot
 interface first, the learner (and the recorder, the live view) last.
-:func:`run_processes` runs a whole plan that way while :class:`~clis_app.progress.Monitor`
+:func:`run_processes` runs a whole plan that way while :class:`~clis_app.graph.progress.Monitor`
 follows the learner. The exit codes of ``clis run`` are defined here.
 """
 
@@ -17,9 +17,9 @@ import signal
 import subprocess
 import time
 
-from clis_app import ctrl_c
-from clis_app.graph_plan import Child, GraphPlan
-from clis_app.progress import Monitor, ProgressView
+from clis_app.cli import ctrl_c
+from clis_app.graph.plan import Child, GraphPlan
+from clis_app.graph.progress import Monitor, ProgressView
 
 __all__ = ['EXIT_CHILD', 'EXIT_CONFIG', 'EXIT_INTERRUPTED', 'EXIT_OK', 'EXIT_STARTUP',
            'Supervisor', 'lockstep_timeouts', 'run_processes']
@@ -126,7 +126,7 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
 
     rclpy.init(args=['clis_run', '--ros-args', '--disable-rosout-logs'],
                signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    # SIGINT/SIGTERM remembered (clis_app.ctrl_c); a Ctrl-C since the command started
+    # SIGINT/SIGTERM remembered (clis_app.cli.ctrl_c); a Ctrl-C since the command started
     # counts too, even one whose KeyboardInterrupt was swallowed where it was raised
     interrupted = ctrl_c.interrupted
     old = signal.signal(signal.SIGINT, lambda signum, _: ctrl_c.remember(signum))

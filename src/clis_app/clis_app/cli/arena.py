@@ -16,11 +16,13 @@ starts (``--png``).
 from __future__ import annotations
 
 import argparse
-import os
+from functools import partial
 from pathlib import Path
 import sys
 
-from clis_app.cli_help import HelpFormatter
+from clis_app import files
+from clis_app.cli.errors import fail
+from clis_app.cli.help import HelpFormatter
 
 EPILOG = """\
 examples:
@@ -51,9 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=main)
 
 
-def _fail(message: str, code: int = 2) -> int:
-    print(f'clis arena: {" ".join(str(message).split())}', file=sys.stderr)
-    return code
+#: ``clis arena: MESSAGE`` on one line, exit code 2 (:func:`clis_app.cli.errors.fail`)
+_fail = partial(fail, 'arena')
 
 
 def _writable(path: Path | None, flag: str) -> str:
@@ -86,9 +87,7 @@ def main(args: argparse.Namespace) -> int:
         if args.out is None:
             sys.stdout.write(text)
         else:
-            tmp = args.out.with_name(f'.{args.out.name}.tmp')
-            tmp.write_text(text)
-            os.replace(tmp, args.out)
+            files.write_text(args.out, text)
             arena = load_arena(args.out, radius)        # what a run will read
             print(f'wrote {args.out}: layout seed {args.seed}, goal hidden from '
                   f'{100 * layout.hidden:.1f}% of the free floor', file=sys.stderr)
@@ -109,7 +108,7 @@ def main(args: argparse.Namespace) -> int:
             print(f'  {name}: {"in its situation" if not why else "NOT in its situation: " + why}')
         title = str(args.file)
     if args.png is not None:
-        from clis_app.study_figures import layout_picture
+        from clis_app.study.figures import layout_picture
         layout_picture(arena, radius, args.png, title)
         print(f'wrote {args.png}', file=sys.stderr)
     if args.action == 'show' and any(start_situations(arena, radius).values()):

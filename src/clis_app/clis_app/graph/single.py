@@ -17,7 +17,7 @@ __all__ = ['run_single']
 
 
 def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
-    """Run ``plan`` (a :class:`clis_app.graph_plan.GraphPlan`) in this process; an exit
+    """Run ``plan`` (a :class:`clis_app.graph.plan.GraphPlan`) in this process; an exit
     code."""
     from clis_learner.learner_node import LearnerNode
     from clis_modules.arbiter_node import ArbiterNode
@@ -30,11 +30,11 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     import rclpy
     from rclpy.clock import Clock, ClockType
 
-    from clis_app import ctrl_c
-    from clis_app.graph_plan import ros_literal
-    from clis_app.progress import Monitor, ProgressView
-    from clis_app.recorder_node import RecorderNode
-    from clis_app.supervise import EXIT_CONFIG, EXIT_INTERRUPTED, EXIT_OK
+    from clis_app.bags.recorder_node import RecorderNode
+    from clis_app.cli import ctrl_c
+    from clis_app.graph.plan import ros_literal
+    from clis_app.graph.progress import Monitor, ProgressView
+    from clis_app.graph.supervise import EXIT_CONFIG, EXIT_INTERRUPTED, EXIT_OK
 
     ros_args = ['clis_run', '--ros-args']
     for f in args.params:
@@ -43,7 +43,7 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         for key, value in child.params.items():
             ros_args += ['-p', f'{key}:={ros_literal(value)}']
     rclpy.init(args=ros_args)
-    # a Ctrl-C is remembered (clis_app.ctrl_c, since the command started): one that lands
+    # a Ctrl-C is remembered (clis_app.cli.ctrl_c, since the command started): one that lands
     # in rclpy's C++ (taking a message) comes out as another error (pybind11's RuntimeError),
     # which is then an interruption too, not a crash; one swallowed where it was raised still
     # stops the run (the wall timer below)

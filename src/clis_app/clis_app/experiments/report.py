@@ -15,8 +15,8 @@ import sys
 from clis_modules.core.plugin import TIMINGS, condition_order, solo_condition
 import numpy as np
 
-from clis_app.core.runner import JobResult
-from clis_app.figures import MIN_BAND_SEEDS, STARTS, band
+from clis_app.experiments.figures import MIN_BAND_SEEDS, STARTS, band
+from clis_app.experiments.runner import JobResult
 
 
 class ReportError(ValueError):
@@ -29,7 +29,7 @@ def load_runs(folders: list[Path]) -> list[JobResult]:
     or every run in ``runs/`` for a folder without one."""
     import json
 
-    from clis_app.core.runner import result_path
+    from clis_app.experiments.runner import result_path
     runs = []
     for folder in folders:
         if not folder.is_dir():
@@ -253,7 +253,7 @@ def eval_report(runs: list[JobResult]) -> str:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from clis_app.cli_help import HelpFormatter
+    from clis_app.cli.help import HelpFormatter
     p = sub.add_parser('report', help='tables of measured results from experiment folders',
                        description=__doc__, formatter_class=HelpFormatter)
     p.add_argument('folders', type=Path, nargs='+', help='output folders of clis experiment')

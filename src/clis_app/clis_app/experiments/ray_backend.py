@@ -1,6 +1,6 @@
 """``clis experiment --backend ray``: the experiment's runs as Ray tasks (docs/scale.md).
 
-Each run (condition, seed) is one task: :func:`~clis_app.core.runner.run_job` on whichever
+Each run (condition, seed) is one task: :func:`~clis_app.experiments.runner.run_job` on whichever
 Ray worker gets it, into a temporary folder of that worker; the task returns the run's result
 file and checkpoint as bytes and the driver writes them to ``OUT/runs/`` exactly where the
 process pool writes them, so no shared file system is needed, ``--resume`` sees the same files
@@ -35,7 +35,8 @@ from typing import Any
 
 from clis_learner.core.config import params_hash
 
-from clis_app.core.runner import JobResult, JobSpec, run_job
+from clis_app import files
+from clis_app.experiments.runner import JobResult, JobSpec, run_job
 
 __all__ = ['LOCAL_ENV', 'MAX_RETRIES', 'init_ray', 'run_ray']
 
@@ -95,9 +96,7 @@ def _job_task(spec: dict, queue: Any) -> tuple[bytes, bytes | None, str]:
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f'.{path.name}.tmp')
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    files.write_bytes(path, data)
 
 
 def _store(spec: JobSpec, result_bytes: bytes, ckpt: bytes | None, expected_hash: str,
@@ -122,7 +121,7 @@ def run_ray(todo: list[JobSpec], workers: int, address: str | None,
 
     Parameters
     ----------
-    progress : clis_app.experiment.Progress
+    progress : clis_app.experiments.experiment.Progress
         Gets ``update(job, episodes, note)`` and ``finish(job, episodes, note)``.
     on_start : callable, optional
         Called with the ``ray`` module once it is initialised (tests).

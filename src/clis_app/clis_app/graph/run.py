@@ -59,9 +59,9 @@ from typing import Any
 from clis_learner.core.config import DEFAULT_PRESET, PRESET_NAMES
 from clis_modules.core.plugin import parse_condition
 
-from clis_app.graph_plan import REALTIME_ABOVE, REALTIME_PRIORITY, plan_graph
-from clis_app.run_curve import summary, write_curve
-from clis_app.supervise import EXIT_CONFIG, run_processes
+from clis_app.graph.curve import summary, write_curve
+from clis_app.graph.plan import REALTIME_ABOVE, REALTIME_PRIORITY, plan_graph
+from clis_app.graph.supervise import EXIT_CONFIG, run_processes
 
 __all__ = ['register', 'main']
 
@@ -285,7 +285,7 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
     from cr_sim.core.sim import IGNORED_SECTIONS, load_sim_params
     from cr_sim.sim_node import SimNodeParams
 
-    from clis_app.recorder_node import RecorderParams
+    from clis_app.bags.recorder_node import RecorderParams
     files = {'graph.yaml': ('/**', {'graph': GraphParams, 'module': ModuleNodeParams,
                                     'arbiter_node': ArbiterNodeParams,
                                     'learner_node': LearnerNodeParams,
@@ -382,7 +382,7 @@ def main(args: argparse.Namespace) -> int:
               f'{out / "checkpoint.npz"}, or choose another --out', file=sys.stderr)
         return EXIT_CONFIG
     # the graph's nodes (and this process's monitor) pass their data through shared memory
-    from clis_app.ros_env import use_graph_profile
+    from clis_app.graph.ros_env import use_graph_profile
     use_graph_profile()
     try:
         plan = plan_graph(args.condition, args.seed, out, args.speed,
@@ -399,7 +399,7 @@ def main(args: argparse.Namespace) -> int:
               '[PORT]', file=sys.stderr)
         return EXIT_CONFIG
     if args.foxglove is not None:                    # the live view (docs/foxglove.md)
-        from clis_app.foxglove_node import plan_live_view
+        from clis_app.live.foxglove_node import plan_live_view
         if error := plan_live_view(plan, args):
             print(f'clis run: {error}', file=sys.stderr)
             return EXIT_CONFIG
@@ -421,7 +421,7 @@ def main(args: argparse.Namespace) -> int:
         f'speed {"max" if args.speed == 0 else f"x{args.speed:g}"}, ROS_DOMAIN_ID '
         f'{os.environ.get("ROS_DOMAIN_ID")}, out {out}')
     if args.single_process:
-        from clis_app.graph_single import run_single
+        from clis_app.graph.single import run_single
         code = run_single(plan, args, out, say)
     else:
         code = run_processes(plan, args, out, say, tty)

@@ -1,7 +1,13 @@
-"""``clis``: the project's entry point.
+"""The command line: ``clis`` and its subcommands.
 
-Every subcommand first configures DDS for this machine only (loopback Fast DDS profile, own
-ROS_DOMAIN_ID) unless ``--network`` is given, so that nothing it starts talks to other hosts.
+This module is the ``clis`` entry point (its parser and ``main``); :mod:`~clis_app.cli.help`
+is its help formatter, :mod:`~clis_app.cli.ctrl_c` how a Ctrl-C ends a command,
+:mod:`~clis_app.cli.errors` the one-line error exit, :mod:`~clis_app.cli.doctor` and
+:mod:`~clis_app.cli.arena` two subcommands; the others live in the room of their job
+(:mod:`clis_app.graph`, :mod:`clis_app.experiments`, :mod:`clis_app.study`,
+:mod:`clis_app.bags`). Every subcommand first configures DDS for this machine only (loopback
+Fast DDS profile, own ROS_DOMAIN_ID) unless ``--network`` is given, so that nothing it starts
+talks to other hosts.
 """
 
 from __future__ import annotations
@@ -18,9 +24,9 @@ from typing import NoReturn
 for _var in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
     os.environ.setdefault(_var, '1')
 
-from clis_app import ctrl_c  # noqa: E402
-from clis_app.cli_help import HelpFormatter  # noqa: E402
-from clis_app.ros_env import apply_ros_env  # noqa: E402
+from clis_app.cli import ctrl_c  # noqa: E402
+from clis_app.cli.help import HelpFormatter  # noqa: E402
+from clis_app.graph.ros_env import apply_ros_env  # noqa: E402
 
 EPILOG = """\
 examples:
@@ -61,7 +67,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list:
     """Subcommands contributed by other modules (each a ``register(subparsers)``)."""
-    from clis_app import arena_cli, bags, compare, experiment, graph_cli, report, study
+    from clis_app.bags import commands as bags
+    from clis_app.cli import arena as arena_cli
+    from clis_app.experiments import compare, experiment, report
+    from clis_app.graph import run as graph_cli
+    from clis_app.study import study
     return [experiment.register, report.register, graph_cli.register, compare.register,
             bags.register, arena_cli.register, study.register]
 
@@ -72,10 +82,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         parser.error(f'--domain-id {args.domain_id} is out of range [0, 232]')
     apply_ros_env(network=args.network, domain_id=args.domain_id)
-    previous = ctrl_c.install()                  # a Ctrl-C is remembered (clis_app.ctrl_c)
+    previous = ctrl_c.install()                  # a Ctrl-C is remembered (clis_app.cli.ctrl_c)
     try:
         if args.command == 'doctor':
-            from clis_app.doctor import run_doctor
+            from clis_app.cli.doctor import run_doctor
             code = run_doctor()
         else:
             code = int(args.func(args) or 0)

@@ -2,8 +2,8 @@
 
 :func:`plan_graph` lists the children of one run (:class:`GraphPlan`, in start order, the robot
 interface last), each a :class:`Child`: its ``ros2 run`` executable and the parameters ``clis
-run`` gives it. Nothing is started here (:mod:`clis_app.supervise` starts them as
-processes, :mod:`clis_app.graph_single` as nodes of one process).
+run`` gives it. Nothing is started here (:mod:`clis_app.graph.supervise` starts them as
+processes, :mod:`clis_app.graph.single` as nodes of one process).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""``python -m clis_app.divergence OUT``: how the importance product of (8) and (9) grows.
+"""``python -m clis_app.experiments.divergence OUT``: how the importance product of (8) and
+(9) grows.
 
 The product ``c_i <- rho~_i c_i`` of (8)(9) multiplies one truncated ratio (7) per decision of
 the target module i. Even when each ratio is near 1 the product random-walks in log space, and
@@ -29,7 +30,7 @@ import sys
 
 import numpy as np
 
-from clis_app.core.runner import JobResult
+from clis_app.experiments.runner import JobResult
 
 __all__ = ['divergence_rows', 'main']
 
@@ -151,7 +152,7 @@ def plot(rows: list[dict[str, str]], path: Path, block: int = 50) -> None:
 
 
 def main(args: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog='python -m clis_app.divergence',
+    p = argparse.ArgumentParser(prog='python -m clis_app.experiments.divergence',
                                 description=__doc__.split('\n\n')[0])
     p.add_argument('out', type=Path, help='a clis experiment folder (its episodes.csv)')
     p.add_argument('--png', type=Path, help='also draw log10 c_max per block to this file')

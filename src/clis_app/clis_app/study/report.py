@@ -15,14 +15,17 @@ aggregated over layouts.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
+from functools import partial
 import json
 import math
-import os
 from pathlib import Path
 import sys
 from typing import Any
 
 import numpy as np
+
+from clis_app import files
+from clis_app.cli.errors import fail
 
 __all__ = ['SUMMARY_FORMAT', 'PROTOCOLS', 'ReportError', 'load_summaries', 'study_summaries',
            'is_single', 'rate_interval', 'leave_one_out_best', 'below_level', 'report',
@@ -38,20 +41,14 @@ class ReportError(ValueError):
     """A study folder whose summaries cannot be read."""
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f'.{path.name}.tmp')
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def _atomic_json(path: Path, data: Any) -> None:
+    """``data`` as the study's JSON files are written (sorted keys, a final newline)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_text(path, json.dumps(data, indent=1, sort_keys=True) + '\n')
+    files.write_text(path, json.dumps(data, indent=1, sort_keys=True) + '\n')
 
 
-def _fail(message: str, code: int = 2) -> int:
-    print(f'clis study: {" ".join(str(message).split())}', file=sys.stderr)
-    return code
+#: ``clis study: MESSAGE`` on one line, exit code 2 (:func:`clis_app.cli.errors.fail`)
+_fail = partial(fail, 'study')
 
 
 def load_summaries(out: Path) -> list[dict]:
@@ -101,7 +98,7 @@ def report_only(out: Path) -> int:
         return _fail(f'--out {out}: no run summaries in {out}/runs (not a study folder, or '
                      'no run finished yet)')
     rep = report(summaries, planned, name, outside)
-    _atomic_text(out / 'report.md', rep['markdown'])
+    files.write_text(out / 'report.md', rep['markdown'])
     _atomic_json(out / 'report.json', rep['numbers'])
     drawn = _draw(rep['numbers'], out)
     md = rep['markdown']
@@ -120,7 +117,7 @@ def _solo_rate(d: Mapping[str, Any], module: str) -> float:
 
 
 def _ci(values: list[float]) -> tuple[float, float, int]:
-    from clis_app.claims import mean_ci
+    from clis_app.experiments.claims import mean_ci
     m, h = mean_ci(values)
     return m, h, int(np.isfinite(np.asarray(values, float)).sum()) if values else 0
 
@@ -639,7 +636,7 @@ def _group_lines(g: dict) -> list[str]:
 def _draw(numbers: dict, out: Path) -> list[str]:
     """Draw the figures the numbers allow; remove those they do not (a figure of an earlier
     report is not this one's). Returns the names of the figures drawn."""
-    from clis_app.study_figures import ForestRow, forest_plot, hidden_scatter
+    from clis_app.study.figures import ForestRow, forest_plot, hidden_scatter
     drawn = []
     panels: dict[str, dict[str, list]] = {}
     for g in numbers['groups']:
@@ -681,7 +678,7 @@ def _draw(numbers: dict, out: Path) -> list[str]:
     if arenas:
         from cr_sim.core.robot import load_robot_params
 
-        from clis_app.study_figures import layout_gallery
+        from clis_app.study.figures import layout_gallery
         layout_gallery(arenas, load_robot_params().radius, out / 'layouts.png')
         drawn.append('layouts.png')
     for name in ('forest.png', 'hidden_share.png', 'layouts.png'):

@@ -1,9 +1,10 @@
 """Figures of layouts and studies: the picture of an arena with its starts, the forest plot of
 Async minus each single module per layout, and View - Innate against the hidden share.
 
-The arena is drawn as the Fig. 4 maps draw it (:func:`clis_app.figures.draw_arena`), with
-what a layout's situations need on top: the landmarks in their colours, each start's heading,
-its straight line to the destination, and the floor from which the destination is hidden.
+The arena is drawn as the Fig. 4 maps draw it
+(:func:`clis_app.experiments.figures.draw_arena`), with what a layout's situations need on
+top: the landmarks in their colours, each start's heading, its straight line to the
+destination, and the floor from which the destination is hidden.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ from cr_sim.core.geometry import segments_blocked
 from cr_sim.core.layout import SITUATIONS, hidden_share, start_situations
 import numpy as np
 
-from clis_app.core.runner import arena_dict
-from clis_app.figures import _save, draw_arena, plt
+from clis_app.experiments.figures import _save, draw_arena, plt
+from clis_app.experiments.runner import arena_dict
 
 __all__ = ['draw_layout', 'layout_picture', 'layout_gallery', 'ForestRow', 'forest_plot',
            'hidden_scatter']

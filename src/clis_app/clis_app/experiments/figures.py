@@ -1,6 +1,6 @@
 """Figures of the experiments (the paper's Fig. 3-5, plus the diagnostics that explain them).
 
-Every figure is drawn from saved runs (:class:`clis_app.core.runner.JobResult`), so
+Every figure is drawn from saved runs (:class:`clis_app.experiments.runner.JobResult`), so
 ``clis experiment --figures-only`` redraws them without rerunning anything.
 """
 
@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 import contextlib
-import os
 from pathlib import Path
 import signal
 import threading
@@ -19,6 +18,8 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
+
+from clis_app import files  # noqa: E402
 
 MODULE_COLOURS = {'innate': 'black', 'view': 'magenta', 'place': 'green', 'wall': 'tab:orange'}
 STARTS = ('A', 'B', 'C', 'D', 'E')
@@ -79,11 +80,10 @@ def _save(fig, path: Path) -> None:
     """Save and close ``fig``; written to a temporary file and renamed, so an interrupted
     drawing never leaves half a PNG."""
     path = Path(path)
-    tmp = path.with_name(f'.{path.name}.tmp')
     fig.tight_layout()
-    fig.savefig(tmp, dpi=120, bbox_inches='tight', format=path.suffix.lstrip('.') or 'png')
+    with files.atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, bbox_inches='tight', format=path.suffix.lstrip('.') or 'png')
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def _curves(results, path: Path, curve, xlabel: str, ylabel: str, ymax: float,

@@ -20,7 +20,7 @@ and seed, which the SPEC must have. A generated arena (``{generated: {seeds: [..
 ``{generated: {first: 0, count: 16}}``) is the layout ``clis arena generate --seed K`` writes.
 
 Every value is checked before anything runs or is written: a bad one is one line naming its
-key and the allowed values. Each run is ``run_job`` (clis_app.core.runner) on the
+key and the allowed values. Each run is ``run_job`` (clis_app.experiments.runner) on the
 experiment's process pool or on Ray (``--backend``); as it finishes, its summary (the
 evaluation curve, the final evaluated success, each learned module evaluated alone, the
 settings) is written atomically to ``DIR/runs/ARENA/PROTOCOL/PRESET/CONDITION__sSEED.json``
@@ -46,8 +46,16 @@ import sys
 import time
 from typing import Any
 
-from clis_app.cli_help import HelpFormatter
-from clis_app.study_report import PROTOCOLS, SUMMARY_FORMAT, is_single, report_only
+from clis_app import files
+from clis_app.cli.help import HelpFormatter
+from clis_app.study.report import (
+    PROTOCOLS,
+    SUMMARY_FORMAT,
+    _atomic_json,
+    _fail,
+    is_single,
+    report_only,
+)
 
 __all__ = ['SpecError', 'Run', 'plan', 'summarise', 'cpu_hours', 'register', 'main',
            'PROTOCOLS', 'GRID_KEYS', 'SUMMARY_FORMAT']
@@ -332,7 +340,7 @@ def plan(spec: Any, spec_dir: Path, out: Path) -> tuple[list[Run], dict[str, _Ar
     """
     from cr_sim.core.robot import load_robot_params
 
-    from clis_app.experiment import presets as preset_names
+    from clis_app.experiments.experiment import presets as preset_names
     if not isinstance(spec, Mapping):
         raise SpecError(f'the SPEC must be a mapping of keys {", ".join(GRID_KEYS + TOP_KEYS)}')
     unknown = sorted(set(spec) - set(GRID_KEYS + TOP_KEYS))
@@ -439,7 +447,7 @@ def _check_settings(runs: list[Run], arenas: dict[str, _Arena]) -> None:
 def _job_specs(runs: list[Run], out: Path) -> list:
     from clis_learner.core.config import preset_overrides
 
-    from clis_app.core.runner import JobSpec
+    from clis_app.experiments.runner import JobSpec
     specs = []
     for k, r in enumerate(runs):
         specs.append(JobSpec(
@@ -472,15 +480,12 @@ def summarise(run: Run, result: Any, hidden: float) -> dict:
         'seconds': round(float(result.seconds), 1)}
 
 
-def _atomic_json(path: Path, data: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_text(path, json.dumps(data, indent=1, sort_keys=True) + '\n')
 
 
 def _store(run: Run, spec: Any, out: Path, hidden: float) -> None:
     """The summary of ``spec``'s finished result file, written atomically; the result file
     (large: every episode) is removed afterwards, its checkpoint kept."""
-    from clis_app.core.runner import JobResult
+    from clis_app.experiments.runner import JobResult
     path = spec.result_path()
     result = JobResult.load(path)
     _atomic_json(run.summary_path(out), summarise(run, result, hidden))
@@ -512,7 +517,7 @@ def _params_hash(run: Run, cache: dict[str, str]) -> str:
 
 def _make_progress(todo_runs: list[Run], specs: list, out: Path, hidden: dict[str, float],
                    quiet: bool) -> Any:
-    from clis_app.experiment import Progress
+    from clis_app.experiments.experiment import Progress
 
     class StudyProgress(Progress):
         """The experiment's progress line; each finished run's summary is written first."""
@@ -522,7 +527,7 @@ def _make_progress(todo_runs: list[Run], specs: list, out: Path, hidden: dict[st
             _store(run, specs[job], out, hidden[run.arena])
             super().finish(job, episodes, f'{run.label} s{run.seed} done')
 
-    from clis_app.experiment import job_costs
+    from clis_app.experiments.experiment import job_costs
     return StudyProgress(total_episodes=sum(s.episodes for s in specs), runs=len(specs),
                          quiet=quiet, cost=job_costs(specs))
 
@@ -553,9 +558,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=main)
 
 
-def _fail(message: str, code: int = 2) -> int:
-    print(f'clis study: {" ".join(str(message).split())}', file=sys.stderr)
-    return code
 
 
 def main(args: argparse.Namespace) -> int:
@@ -616,12 +618,12 @@ def main(args: argparse.Namespace) -> int:
     (out / 'arenas').mkdir(parents=True, exist_ok=True)
     (out / 'work').mkdir(exist_ok=True)
     if spec_path.resolve() != (out / 'study.yaml').resolve():
-        _atomic_text(out / 'study.yaml', spec_text)
+        files.write_text(out / 'study.yaml', spec_text)
     hidden = {}
     for key, a in arenas.items():
         copy = out / 'arenas' / f'{key}.yaml'
         if not copy.is_file():
-            _atomic_text(copy, a.text)
+            files.write_text(copy, a.text)
         hidden[key] = hidden_share(parse_arena(yaml.safe_load(a.text), radius), radius)
     _atomic_json(out / 'plan.json', {'name': spec.get('name'),
                                       'runs': [list(r.key) for r in runs]})
@@ -632,12 +634,12 @@ def main(args: argparse.Namespace) -> int:
     left = []
     for r, s in zip(todo, specs):
         if s.done():
-            from clis_app.core.runner import JobResult
+            from clis_app.experiments.runner import JobResult
             if not s.differences(JobResult.load(s.result_path())):
                 _store(r, s, out, hidden[r.arena])
                 continue
         left.append((r, s))
-    from clis_app.experiment import longest_first
+    from clis_app.experiments.experiment import longest_first
     order = {id(s): k for k, (_, s) in enumerate(left)}
     ordered = longest_first([s for _, s in left])
     todo_runs = [left[order[id(s)]][0] for s in ordered]
@@ -651,14 +653,14 @@ def main(args: argparse.Namespace) -> int:
         progress = _make_progress(todo_runs, ordered, out, hidden, args.quiet)
         if args.backend == 'ray':
             try:
-                from clis_app.ray_backend import run_ray
+                from clis_app.experiments.ray_backend import run_ray
                 run_ray(ordered, args.workers, args.address, progress)
             except ImportError as exc:
                 return _fail(f'--backend ray needs ray ({exc}); `make setup` installs it')
             except ConnectionError as exc:
                 return _fail(f'cannot reach the Ray cluster at {args.address}: {exc}', 1)
         else:
-            from clis_app.experiment import _run_all
+            from clis_app.experiments.experiment import _run_all
             _run_all(ordered, args.workers, args.quiet, progress)
         if not args.quiet:
             print(file=sys.stderr)
@@ -673,21 +675,17 @@ def main(args: argparse.Namespace) -> int:
     return code
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f'.{path.name}.tmp')
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 #: CPU seconds of 1000 learning episodes of Innate alone (docs/benchmarks.md: 7 CPU-s); the
-#: other conditions cost :data:`clis_app.experiment._COST` times that.
+#: other conditions cost :data:`clis_app.experiments.experiment._COST` times that.
 _INNATE_CPU_S = 7.0
 
 
 def cpu_hours(runs: list[Run]) -> float:
     """A rough estimate of the CPU time of ``runs`` [h]: the benchmarks' cost per learning
     episode of each condition, an evaluation episode counted as a learning one."""
-    from clis_app.experiment import _cost
+    from clis_app.experiments.experiment import _cost
     total = 0.0
     for r in runs:
         episodes, every = r.setting('episodes'), r.setting('eval_every')

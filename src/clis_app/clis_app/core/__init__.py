@@ -1,1 +1,0 @@
-"""The application's pure cores (no rclpy): the headless runner and the MCAP bag writer."""
