@@ -14,7 +14,9 @@ the emulator's ``--speed``).
 
 Episodes (:class:`cr_bridge.core.episode.RobotEpisodes`): destination reached from the camera,
 collisions from the bump switch (accelerometer, IR optional), rewards and time limit with the
-simulator's numbers, and the simulator's wander policy between episodes.
+simulator's numbers, and the simulator's wander policy between episodes; their numbering, start
+and end events, returns and learner gate are the simulator's own
+(:class:`cr_sim.core.episodes.EpisodeBook`).
 
 Safety (:class:`cr_bridge.core.safety.CommandGuard`): a command with NaN/inf is rejected (the
 wheels stop), wheel speeds are clipped to ``robot.v_wheel_max`` (1.3 m/s), ``node.watchdog``
@@ -33,6 +35,7 @@ import signal
 import time
 
 from cr_sim.core.arena import load_arena
+from cr_sim.core.episodes import Event
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.robot import clamp_wheels, integrate_arc, robot_defaults, wheels_to_twist
@@ -331,7 +334,7 @@ class BridgeNode(Node):
         self.wander_u = step.wander
         self._send_wheels(now, force=True)
 
-    def _publish_event(self, ev) -> None:
+    def _publish_event(self, ev: Event) -> None:
         self.pub_episode.publish(conv.episode_msg(ev.name, ev.t, **ev.values))
 
     def _publish_readings(self, r: Reading) -> None:

@@ -2,9 +2,11 @@
 
 Publishes the robot interface (see :mod:`cr_sim.conversions` and the topic table of docs/robot.md),
 ground-truth ``odom``, ``markers`` and ``/clock``; subscribes to ``cmd_vel``; offers the
-``reset`` service (std_srvs/Trigger). The core (:class:`cr_sim.core.sim.Simulator`) steps at
-``episode.dt`` of sim time; the node paces it at ``node.speed_factor`` times real time
-(0 = as fast as possible). Timers of nodes running with ``use_sim_time`` skip rather than replay
+``reset`` service (std_srvs/Trigger). The episodes (starts, ends, rewards, the clock, the
+resume state, the commands and the holds) are :class:`cr_sim.core.sim_episodes.SimEpisodes`
+around the simulator core (:class:`cr_sim.core.sim.Simulator`), which steps at ``episode.dt``
+of sim time; the node paces it at ``node.speed_factor`` times real time (0 = as fast as
+possible). Timers of nodes running with ``use_sim_time`` skip rather than replay
 missed periods (docs/design.md §8), so one tick of sim time (50 ms) must stay below the shortest
 module period (250 ms): it does by construction.
 
@@ -20,9 +22,6 @@ replaced by a stop.
 
 from __future__ import annotations
 
-import base64
-from collections import deque
-import json
 import time
 
 import numpy as np
@@ -33,13 +32,12 @@ from rclpy.node import Node
 
 from cr_sim import conversions as conv
 from cr_sim.core.arena import load_arena
+from cr_sim.core.episodes import Event
 from cr_sim.core.gate import EpisodeGate
-from cr_sim.core.instants import DecisionClock
 from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.robot import robot_defaults
-from cr_sim.core.sim import SimParams, Simulator
-from cr_sim.core.starts import draw_start
-from cr_sim.core.streams import AgentStream
+from cr_sim.core.sim import SimParams
+from cr_sim.core.sim_episodes import READINGS, SimEpisodes
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
 from cr_sim.ros_support.executor import make_executor
 from cr_sim.ros_support.lifecycle import (
@@ -56,10 +54,8 @@ from cr_sim.ros_support.trace import mark
 
 START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
 #: Between the instants a lockstep holds at, callbacks (a reset, a command) are served every
-#: this many ticks (each serving costs a wait of the executor: :attr:`SimNode.quiet`).
+#: this many ticks (each serving costs a wait of the executor: :attr:`SimEpisodes.quiet`).
 QUIET_SPIN = 5
-#: Before the first episode, the graph's subscribers are looked at this often [wall s].
-GRAPH_POLL = 0.05
 
 
 @dataclass(frozen=True)
@@ -107,7 +103,7 @@ class SimNodeParams:
                               'before first_episode (clis run --resume: from the checkpoint): '
                               'the robot starts its wander where it stood, the clock where it '
                               'went on, the random streams where they stood')
-    readings: str = param(choices=('tick', 'instants'), doc="'tick': IR and camera read "
+    readings: str = param(choices=READINGS, doc="'tick': IR and camera read "
                           "(their noise drawn) and published at every tick; 'instants': only "
                           'at the decision instants of lockstep_periods, as the headless '
                           'runner reads them (the wheels and the clock at every tick)')
@@ -121,72 +117,54 @@ class SimNodeParams:
 
 
 class SimNode(Node):
-    """Thin glue: parameters -> core; core state -> messages; cmd_vel -> core."""
+    """Thin glue: parameters -> core; core state -> messages; cmd_vel -> core.
+
+    The episodes, the clock, the commands and the holds are
+    :class:`cr_sim.core.sim_episodes.SimEpisodes` (:attr:`core`)."""
 
     def __init__(self) -> None:
         super().__init__('sim')
         # the body (config/robot.yaml) and the simulator's sections (config/sim.yaml)
         defaults = {**robot_defaults(), **ros_parameters(config_dir() / 'sim.yaml', 'sim')}
         values = declare_from_config(self, defaults)     # errors name the ROS key (main)
-        self.cfg = build(SimNodeParams, values.pop('node'), where='node')
+        cfg = self.cfg = build(SimNodeParams, values.pop('node'), where='node')
         self.params = build(SimParams, values)
-        self.arena = load_arena(self.cfg.arena_file or None)
-        # the headless runner's streams: the simulator (seed, 0) and the starts (seed, 1), each
-        # continuous over the episodes (a resumed run sets them from resume_state)
-        self.sim = Simulator(self.arena, self.params, np.random.default_rng([self.cfg.seed, 0]))
-        self.start_rng = np.random.default_rng([self.cfg.seed, 1])
-        periods = [p for p in self.cfg.lockstep_periods if p > 0.0]
-        self.clock = DecisionClock(periods, self.params.episode.dt) if periods else None
-        if self.cfg.readings == 'instants' and self.clock is None:
-            raise ConfigError("node.readings = 'instants' needs node.lockstep_periods")
-        # the agent stream (seed, 2) over the episodes, for the modules and the arbiter
-        self.agent = (AgentStream(np.random.default_rng([self.cfg.seed, 2]), len(periods),
-                                  self.cfg.agent_selection, self.clock)
-                      if self.cfg.agent_selection and self.clock is not None else None)
+        self.arena = load_arena(cfg.arena_file or None)
+        self.gate = EpisodeGate(cfg.wait_for_learner, cfg.learner_timeout, cfg.lockstep,
+                                cfg.command_timeout, hold_periods=cfg.lockstep_periods,
+                                graph_timeout=cfg.graph_timeout, dt=self.dt)
+        self.core = SimEpisodes(
+            self.arena, self.params, self.gate, seed=cfg.seed, start=cfg.start,
+            first_episode=cfg.first_episode, resume_state=cfg.resume_state,
+            auto_reset=cfg.auto_reset, watchdog=cfg.watchdog,
+            decision_periods=cfg.lockstep_periods, readings=cfg.readings,
+            agent_selection=cfg.agent_selection)
+        self.sim = self.core.sim
         self.wheel_base = self.params.robot.wheel_base
-        self.u = np.zeros(2)
-        self.u_time = -np.inf
-        self.episode = self.cfg.first_episode - 1     # the last episode started
-        self._time_offset = 0.0
-        if self.cfg.resume_state:
-            self._resume(self.cfg.resume_state)
-        self.t_start = 0.0                  # sim time of the running episode's start
-        self.episode_return = 0.0
         self.next_marker_t = 0.0
-        self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout,
-                                self.cfg.lockstep, self.cfg.command_timeout,
-                                hold_periods=self.cfg.lockstep_periods,
-                                graph_timeout=self.cfg.graph_timeout, dt=self.dt)
-        # sensor-to-command round trips of the held instants [wall s], the newest 100,000
-        self.round_trips: deque[float] = deque(maxlen=100_000)
-        self._round_trip_log = (open(self.cfg.round_trip_log, 'a', buffering=1 << 16)
-                                if self.cfg.round_trip_log else None)
-
-        open_robot_interface(self, self.arena, self.cfg.map_frame, self.cfg.cmd_vel_stamped,
-                             self.cfg.wait_for_learner, self.cfg.command)
+        self._round_trip_log = (open(cfg.round_trip_log, 'a', buffering=1 << 16)
+                                if cfg.round_trip_log else None)
+        open_robot_interface(self, self.arena, cfg.map_frame, cfg.cmd_vel_stamped,
+                             cfg.wait_for_learner, cfg.command)
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
         self.ir_angles = np.deg2rad(self.params.sensors.ir_angles_deg)
         try:
-            self.start_subscribers = parse_counts(self.cfg.start_subscribers,
+            self.start_subscribers = parse_counts(cfg.start_subscribers,
                                                   'sim.node.start_subscribers')
         except ConfigError as exc:
             self.get_logger().fatal(str(exc))
             raise
-        self.graph_check_at = 0.0               # next look at the graph's subscribers (wall)
-        if self.gate.first(time.monotonic(), ready=not unmatched(self, self.start_subscribers)):
+        if self.core.first(ready=not unmatched(self, self.start_subscribers)):
             self._start_episode()
         self.get_logger().info(
-            f'arena {self.cfg.arena_file or "config/arena.yaml"}, dt {self.params.episode.dt} s, '
-            f'speed x{self.cfg.speed_factor or "max"}, cmd_vel '
-            f'{"TwistStamped" if self.cfg.cmd_vel_stamped else "Twist"}')
+            f'arena {cfg.arena_file or "config/arena.yaml"}, dt {self.params.episode.dt} s, '
+            f'speed x{cfg.speed_factor or "max"}, cmd_vel '
+            f'{"TwistStamped" if cfg.cmd_vel_stamped else "Twist"}')
 
     def destroy_node(self) -> None:
-        if self.round_trips:
-            rtt = np.array(self.round_trips) * 1e3
-            self.get_logger().info(
-                f'sensor-to-command round trip over the last {rtt.size} held instants: p50 '
-                f'{np.percentile(rtt, 50):.2f} ms, p99 {np.percentile(rtt, 99):.2f} ms, max '
-                f'{rtt.max():.2f} ms')
+        summary = self.core.round_trip_summary()
+        if summary is not None:
+            self.get_logger().info(summary)
         if self._round_trip_log is not None:
             self._round_trip_log.close()
             self._round_trip_log = None
@@ -199,169 +177,71 @@ class SimNode(Node):
     def _on_cmd(self, msg) -> None:
         stamp = conv.cmd_stamp(msg)
         mark('sim_cmd', stamp)
-        if self.gate.lockstep and stamp and stamp < self.t_start - 1e-6:
+        if self.core.stale(stamp):
             return                  # in lockstep: a command decided in an earlier episode
         # Clamped in the core (NaN/inf -> 0, limit): a bad command never reaches the wheels.
         try:
-            self.u = conv.wheels_from_cmd(msg, self.wheel_base)
+            u = conv.wheels_from_cmd(msg, self.wheel_base)
         except ValueError as exc:
             self.get_logger().error(f'ignored a command: {exc}', throttle_duration_sec=2.0)
             return
-        self.u_time = self.sim.t
-        held = self.gate.t
-        rtt = self.gate.on_command(stamp, time.monotonic())
-        if rtt is not None:
-            self.round_trips.append(rtt)
-            if self._round_trip_log is not None:
-                self._round_trip_log.write(f'{held:.6f} {rtt * 1e3:.4f}\n')
+        held, rtt = self.core.command(u, stamp)
+        if rtt is not None and self._round_trip_log is not None:
+            self._round_trip_log.write(f'{held:.6f} {rtt * 1e3:.4f}\n')
 
     def _on_reset(self, request, response):
-        self.gate.state = 'run'
-        self._end_episode('reset')
+        self._publish_event(self.core.reset())
         self._start_episode()
         response.success = True
-        response.message = f'episode {self.episode} started at {self.cfg.start}'
+        response.message = f'episode {self.core.episode} started at {self.cfg.start}'
         return response
 
-    def _next_offset(self) -> float:
-        """The clock at the start of the next episode: /clock stays monotonic across
-        episodes, and the next episode starts one tick after the end, so that every stamp
-        belongs to one episode only."""
-        return self._time_offset + (self.sim.t + self.dt)
-
-    def resume_state(self) -> str:
-        """What the next episode starts from, exactly (``node.resume_state``): the robot's
-        pose, wheels and contact (:meth:`Simulator.carried`) and the clock, as hex floats,
-        then the random streams (the simulator's, the starts', the agent stream), as
-        URL-safe base64 of their JSON."""
-        streams = {'sim': self.sim.random_state(), 'starts': self.start_rng.bit_generator.state,
-                   'agent': self.agent.start_state if self.agent is not None else None}
-        packed = base64.urlsafe_b64encode(json.dumps(streams, sort_keys=True).encode())
-        return ' '.join([*(float(v).hex() for v in (*self.sim.carried(), self._next_offset())),
-                         packed.decode()])
-
-    def _resume(self, text: str) -> None:
-        """Stand where the episode before ``first_episode`` left the robot, the clock and the
-        random streams."""
-        try:
-            words = text.split()
-            if len(words) != 8:
-                raise ValueError(f'{len(words)} values, expected 8')
-            values = [float.fromhex(v) for v in words[:7]]
-            streams = json.loads(base64.urlsafe_b64decode(words[7]))
-            self.sim.carry(values[:6])
-            self.sim.set_random_state(streams['sim'])
-            self.start_rng.bit_generator.state = streams['starts']
-            if self.agent is not None and streams['agent'] is not None:
-                self.agent.rng.bit_generator.state = streams['agent']
-                self.agent.begin_episode()
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ConfigError(f'node.resume_state = {text!r}: {exc}') from None
-        self._time_offset = values[6]
+    def _publish_event(self, ev: Event | None) -> None:
+        if ev is not None:
+            self.pub_episode.publish(conv.episode_msg(ev.name, ev.t, **ev.values))
 
     def _start_episode(self) -> None:
-        if self.episode >= self.cfg.first_episode:    # not this process's first
-            self._time_offset = self._next_offset()
-        start, heading = draw_start(self.cfg.start, self.arena, self.start_rng)
-        self.sim.reset(start=start, heading=heading)
-        self.episode += 1
-        self.t_start = self.sim_time
-        self.episode_return = 0.0
-        self.u[:] = 0.0
-        self.u_time = -np.inf
-        extra = {'params_version': self.gate.version} if self.cfg.wait_for_learner else {}
-        extra['dt'] = repr(self.dt)
-        if self.agent is not None:
-            self.agent.begin_episode()
-            extra['agent_state'] = self.agent.state()
-        self.pub_episode.publish(conv.episode_msg(
-            'start', self.sim_time, episode=self.episode, start=start,
-            pose=' '.join(f'{p:.3f}' for p in self.sim.pose), **extra))
-        self.gate.started(self.episode, self.t_start)
+        self._publish_event(self.core.start())
         self._publish_state()
-
-    @property
-    def quiet(self) -> bool:
-        """Lockstep at the decision instants only, clock running: until the next instant the
-        clock waits for no message (the controller's command cannot change before it), so
-        :func:`run` serves callbacks only every :data:`QUIET_SPIN` ticks."""
-        g = self.gate
-        return g.lockstep and not g.free and bool(g.hold_periods) \
-            and 0.0 not in g.hold_periods
-
-    @property
-    def holding(self) -> bool:
-        """Whether the clock stands still (:class:`~cr_sim.core.gate.EpisodeGate`)."""
-        return self.gate.holding
 
     def check_hold(self) -> None:
         """Start the next episode or let the clock run once the gate opens."""
-        ready = True
-        if self.gate.state == 'graph':           # node.start_subscribers not all matched yet
-            if time.monotonic() < self.graph_check_at:
-                return                           # (the graph API is not free: every 50 ms)
-            self.graph_check_at = time.monotonic() + GRAPH_POLL
-            missing = unmatched(self, self.start_subscribers)
-            ready = not missing
-            if ready:
-                self.get_logger().info('the graph is connected (node.start_subscribers)')
-            elif time.monotonic() >= self.gate.deadline:
-                self.get_logger().warning('not matched: ' + ', '.join(missing))
-        action, warning = self.gate.poll(time.monotonic(), ready)
-        if warning:
-            self.get_logger().warning(warning)
+        action, said = self.core.check_hold(lambda: unmatched(self, self.start_subscribers))
+        for level, text in said:
+            getattr(self.get_logger(), level)(text)
         if action == 'start':
             self._start_episode()
         elif action == 'resend':
             self._resend()
 
-    def _end_episode(self, event: str) -> None:
-        if self.agent is not None:      # the draws of the episode's instants (AgentStream)
-            self.agent.end_episode(int(round(self.sim.t / self.dt)))
-        self.pub_episode.publish(conv.episode_msg(
-            event, self.sim_time, episode=self.episode, episode_return=self.episode_return,
-            duration=self.sim.t, resume_state=self.resume_state()))
-
     def tick(self) -> None:
         """Advance the simulator by one tick and publish what the robot senses."""
-        if self.sim.done:  # auto_reset off: hold still until `reset`, sim time goes on
-            self._time_offset += self.dt
-            self.pub_clock.publish(conv.clock_msg(self.sim_time))
+        res = self.core.step()
+        if res is None:    # auto_reset off: hold still until `reset`, sim time goes on
+            self.pub_clock.publish(conv.clock_msg(self.core.sim_time))
             return
-        u = self.u if self.sim.t - self.u_time <= self.cfg.watchdog else np.zeros(2)
-        res = self.sim.step(u)
-        self.episode_return += res.reward
-        self.pub_reward.publish(conv.reward_msg(res.reward, self.episode_return, self.episode,
-                                                self.sim_time))
+        self.pub_reward.publish(conv.reward_msg(res.reward, self.core.book.ret,
+                                                self.core.episode, self.core.sim_time))
         self._publish_state(readings=not res.done)
-        if res.done:
-            self._end_episode('reached' if res.reached else 'timeout')
-            if self.cfg.auto_reset and self.gate.ended(self.episode, time.monotonic()):
-                self._start_episode()
+        ev, start_next = self.core.finish(res)
+        self._publish_event(ev)
+        if start_next:
+            self._start_episode()
 
     def _publish_state(self, readings: bool = True) -> None:
         """The robot's readings at the current instant, then ``/clock`` (so that a node whose
-        timer fires on this clock tick already has the readings stamped with it).
-
-        With ``node.readings = instants`` the IR and the camera are read (their noise drawn)
-        only at the decision instants and not at the tick an episode ends on (``readings``
-        False), as the headless runner reads them; the wheels go out at every tick."""
-        t = self.sim_time
+        timer fires on this clock tick already has the readings stamped with it); the IR and
+        the camera only when the core reads them (:meth:`SimEpisodes.readings_now`)."""
+        t = self.core.sim_time
         frame = self.cfg.base_frame
-        sensors = self.params.sensors
-        if self.cfg.readings == 'instants' and not (
-                readings and self.clock.is_instant(self.sim.t, 0.0)):
-            wheels = np.array(self.sim.carried()[3:5])
-            self._last = [(self.pub_wheels, conv.wheels_msg(wheels, t, frame))]
-        else:
-            obs = self.sim.observe()
-            wheels = obs.wheels
-            self._last = [
-                (self.pub_ir, conv.ir_msg(obs.ir, self.ir_angles, sensors.ir_range, t, frame)),
-                (self.pub_ir_ranges, conv.ir_ranges_msg(obs.ir, t, frame)),
-                (self.pub_camera, conv.bearings_msg(
-                    self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame)),
-                (self.pub_wheels, conv.wheels_msg(wheels, t, frame))]
+        obs, wheels = self.core.readings_now(readings)
+        self._last = [] if obs is None else [
+            (self.pub_ir, conv.ir_msg(obs.ir, self.ir_angles, self.params.sensors.ir_range, t,
+                                      frame)),
+            (self.pub_ir_ranges, conv.ir_ranges_msg(obs.ir, t, frame)),
+            (self.pub_camera, conv.bearings_msg(
+                self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame))]
+        self._last.append((self.pub_wheels, conv.wheels_msg(wheels, t, frame)))
         # display only (ground truth, never a module input): built only for a subscriber
         if self.pub_odom.get_subscription_count():
             self._last.append((self.pub_odom, conv.odom_msg(
@@ -375,17 +255,12 @@ class SimNode(Node):
         mark('sim_pub0', t)
         self._resend()
         mark('sim_pub1', t)
-        self.gate.published(t, time.monotonic())
+        self.core.published(t)
 
     def _resend(self) -> None:
         """Publish the readings of the current instant (again)."""
         for pub, msg in self._last:
             pub.publish(msg)
-
-    @property
-    def sim_time(self) -> float:
-        """Total sim time since the node started (monotonic across episodes)."""
-        return self._time_offset + self.sim.t
 
 
 class CommandWait:
@@ -433,7 +308,7 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
     fast = CommandWait(node) if list(executor.get_nodes()) == [node] and rp_supported() \
         else None
     while rclpy.ok():
-        if node.holding:                  # the clock stands still (learner gate, lockstep)
+        if node.core.holding:             # the clock stands still (learner gate, lockstep)
             waiting_cmd = fast is not None and node.gate.state == 'command'
             if not (waiting_cmd and fast.wait(0.005)):
                 executor.spin_once(timeout_sec=0.0 if waiting_cmd else 0.005)
@@ -443,11 +318,11 @@ def run(node: SimNode, executor: SingleThreadedExecutor) -> None:
             # paced (speed > 0): the schedule goes on across the hold, so that a clock held at
             # every instant (lockstep) is still capped at speed x wall time; a long hold (the
             # learner) falls more than 1 s behind and restarts the schedule below
-            if node.holding or period > 0:
+            if node.core.holding or period > 0:
                 continue
             # released by the command just taken: the next tick at once (the graph's
             # callbacks of this instant all ran before that command)
-        elif not node.quiet or ticks % QUIET_SPIN == 0:
+        elif not node.core.quiet or ticks % QUIET_SPIN == 0:
             executor.spin_once(timeout_sec=0.0)
         ticks += 1
         now = time.monotonic()

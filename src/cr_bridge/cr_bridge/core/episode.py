@@ -19,6 +19,10 @@ rules and parameters (``config/sim.yaml`` sections ``episode`` and ``wander``):
 
 Rewards are reported on every frame of an episode after its first (as the simulator reports
 one per step), the first frame of an episode is its start instant.
+
+What the robot shares with the simulator is the simulator's: the numbering, the start and end
+events, the return and the learner gate are :class:`cr_sim.core.episodes.EpisodeBook`, the
+events :class:`cr_sim.core.episodes.Event`; only the rules above are the robot's.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 
+from cr_sim.core.episodes import EpisodeBook, Event
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.observation import Observation
 from cr_sim.core.params import dataclass as frozen_dataclass
@@ -85,15 +90,6 @@ class Reading:
                            self.wheels)
 
 
-@dataclass(frozen=True)
-class Event:
-    """An episode event: ``start`` / ``reached`` / ``timeout`` / ``reset`` at ``t``."""
-
-    name: str
-    t: float
-    values: dict = field(default_factory=dict)
-
-
 @dataclass
 class Step:
     """What one reading gives: events (in order), the reward of the frame (None outside an
@@ -136,20 +132,27 @@ class RobotEpisodes:
         self.contact = contact
         self.goal_radius = goal_radius
         self.gate = gate
+        self.book = EpisodeBook(gate)    # numbering, events, return, learner gate
         self.policy = WanderPolicy(wander, ir_angles, rng)
         self.start_mode = start
-        self.state = 'wander'            # 'run' (an episode) or 'wander' (between)
-        self.episode = 0
-        self.t0 = 0.0
-        self.ret = 0.0
         self.in_contact = False
         self.wander_since: float | None = None
-        self.gate_open = False
         self._first = True
 
     @property
     def running(self) -> bool:
-        return self.state == 'run'
+        """An episode runs (else the robot wanders to the next start)."""
+        return self.book.running
+
+    @property
+    def episode(self) -> int:
+        """The last episode started (0 before the first)."""
+        return self.book.episode
+
+    @property
+    def ret(self) -> float:
+        """The running (or last) episode's return."""
+        return self.book.ret
 
     def is_contact(self, r: Reading) -> bool:
         c = self.contact
@@ -167,13 +170,14 @@ class RobotEpisodes:
         """One sensor frame at wall time ``now`` (wall time is for the learner gate only)."""
         out = Step()
         contact = self.is_contact(r)
-        if self.state == 'run':
+        book = self.book
+        if book.running:
             collision = contact and not self.in_contact
             reached = self.in_goal(r)
-            timeout = not reached and r.t - self.t0 >= self.p.time_limit - 1e-6
+            timeout = not reached and r.t - book.t0 >= self.p.time_limit - 1e-6
             reward = (self.p.reward_collision if collision else 0.0) + \
                 (self.p.reward_goal if reached else 0.0)
-            self.ret += reward
+            book.add(reward)
             out.reward = reward
             self.in_contact = contact
             if reached or timeout:
@@ -186,44 +190,28 @@ class RobotEpisodes:
             self.policy.reset()
             if self._first:
                 self._first = False
-                self.gate_open = self.gate.first(now)
-        if not self.gate_open:
-            action, _ = self.gate.poll(now)
-            self.gate_open = action == 'start'
-        here = self.start_mode == 'here' and self.episode == 0
-        if self.gate_open and not self.in_goal(r) and (
+                book.first(now)
+        if not book.ready:
+            book.poll(now)
+        here = self.start_mode == 'here' and book.episode == 0
+        if book.ready and not self.in_goal(r) and (
                 here or r.t - self.wander_since >= self.p.wander_time - 1e-6):
-            out.events.append(self._start(r))
+            self.wander_since = None
+            out.events.append(book.start(r.t, start='here' if here else 'wander'))
             return out
         out.wander = self.policy.act(r.observation(self.wander_since))
         return out
 
-    def _start(self, r: Reading) -> Event:
-        self.state = 'run'
-        self.episode += 1
-        self.t0 = r.t
-        self.ret = 0.0
-        self.wander_since = None
-        self.gate_open = False
-        self.gate.started(self.episode)
-        values = {'episode': self.episode, 'start': 'here' if self.episode == 1 and
-                  self.start_mode == 'here' else 'wander'}
-        if self.gate.wait_for_learner:
-            values['params_version'] = self.gate.version
-        return Event('start', r.t, values)
-
     def _end(self, name: str, t: float, now: float) -> Event:
-        self.state = 'wander'
+        ev = self.book.end(name, t, t - self.book.t0)
         self.wander_since = None
-        ev = Event(name, t, {'episode': self.episode, 'episode_return': self.ret,
-                             'duration': t - self.t0})
-        self.gate_open = self.gate.ended(self.episode, now)
+        self.book.release(now)
         return ev
 
     def end(self, t: float, now: float, reason: str = '') -> Event | None:
         """End the running episode from outside (``reset``: the service, or the link was
         lost); None if none runs."""
-        if self.state != 'run':
+        if not self.book.running:
             return None
         ev = self._end('reset', t, now)
         if reason:
