@@ -1,0 +1,322 @@
+"""Colour blobs in a camera image: each target's bearing from the pixels of its colour.
+
+Model
+-----
+* Colour: each target has a range in HSV (:class:`ColourRange`), the hexcone model of the
+  pixel's RGB / 255: hue ``H`` in degrees [0, 360), saturation ``S`` and value ``V`` in
+  [0, 1]. A pixel matches when ::
+
+      hue_lo <= H <= hue_hi   (hue_lo > hue_hi: H >= hue_lo or H <= hue_hi, through 0: red)
+      sat_lo <= S <= sat_hi   and   val_lo <= V <= val_hi
+
+  HSV rather than RGB bounds: dimming the light scales RGB and leaves H and S unchanged, so
+  one range holds over the shading of a cylinder and the exposure of a camera; a grey pixel
+  (S = 0) matches no range with ``sat_lo > 0``. :data:`NAMED_RANGES` holds a range per colour
+  name of an arena file (the renderer's colours, :mod:`cr_sim.core.render`).
+* Blob: the matching pixels are labelled in 8-connected components
+  (``scipy.ndimage.label``); on a strip that closes on itself (``camera.wraps``, the
+  panoramic camera) two components touching across the seam (columns ``W - 1`` and 0) are
+  one. The largest component (the first label on a tie) is the target's blob; a target with
+  no matching pixel or whose blob has fewer than ``min_area`` pixels is not seen.
+* Bearing: the blob's column centroid ``u_c`` (the mean column of its pixels, unwrapped
+  across the seam: the strip is cut at the widest run of columns without the blob) through
+  ``camera.bearing_of_column``. Angular width: the angle between the blob's outer column
+  edges, ``|bearing(u_min - 0.5) - bearing(u_max + 0.5)|``; on a strip, the columns spanned
+  times ``2 pi / W``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+import math
+
+from cr_sim.core.camera import CameraModel
+import numpy as np
+from scipy import ndimage
+
+__all__ = [
+    'ENCODINGS', 'ColourRange', 'NAMED_RANGES', 'BlobParams', 'Blob', 'hsv', 'detect',
+    'bearings',
+]
+
+#: Accepted image encodings (sensor_msgs/Image names) and their channel count.
+ENCODINGS = {'rgb8': 3, 'bgr8': 3, 'rgba8': 4}
+
+_EIGHT = np.ones((3, 3), dtype=bool)          # 8-connectivity of ndimage.label
+
+
+def _check(name: str, value: float, lo: float, hi: float) -> None:
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, bool) and lo <= value <= hi
+    if not ok:
+        raise ValueError(f'{name} = {value!r} is out of range: must be in [{lo:g}, {hi:g}]')
+
+
+@dataclass(frozen=True)
+class ColourRange:
+    """A box in HSV space (module docstring): the pixels of one target's colour.
+
+    Attributes
+    ----------
+    hue_lo, hue_hi : float
+        Hue bounds [deg], in [0, 360]; ``hue_lo > hue_hi`` wraps through 0.
+    sat_lo, sat_hi : float
+        Saturation bounds, in [0, 1], ``sat_lo <= sat_hi``.
+    val_lo, val_hi : float
+        Value (brightness) bounds, in [0, 1], ``val_lo <= val_hi``.
+    """
+
+    hue_lo: float
+    hue_hi: float
+    sat_lo: float = 0.5
+    sat_hi: float = 1.0
+    val_lo: float = 0.2
+    val_hi: float = 1.0
+
+    def __post_init__(self) -> None:
+        _check('hue_lo', self.hue_lo, 0.0, 360.0)
+        _check('hue_hi', self.hue_hi, 0.0, 360.0)
+        _check('sat_lo', self.sat_lo, 0.0, 1.0)
+        _check('sat_hi', self.sat_hi, self.sat_lo, 1.0)
+        _check('val_lo', self.val_lo, 0.0, 1.0)
+        _check('val_hi', self.val_hi, self.val_lo, 1.0)
+
+    def mask(self, h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Which pixels match.
+
+        Parameters
+        ----------
+        h, s, v : np.ndarray, shape (H, W)
+            From :func:`hsv`.
+
+        Returns
+        -------
+        np.ndarray, shape (H, W), bool
+        """
+        if self.hue_lo <= self.hue_hi:
+            hue = (h >= self.hue_lo) & (h <= self.hue_hi)
+        else:
+            hue = (h >= self.hue_lo) | (h <= self.hue_hi)
+        return (hue & (s >= self.sat_lo) & (s <= self.sat_hi) & (v >= self.val_lo)
+                & (v <= self.val_hi))
+
+
+#: A range per colour name of an arena file (hues of :data:`cr_sim.core.render.COLOURS`).
+NAMED_RANGES: dict[str, ColourRange] = {
+    'red': ColourRange(345.0, 15.0), 'orange': ColourRange(18.0, 42.0),
+    'yellow': ColourRange(45.0, 70.0), 'green': ColourRange(95.0, 160.0),
+    'cyan': ColourRange(175.0, 200.0), 'blue': ColourRange(210.0, 250.0),
+    'purple': ColourRange(255.0, 285.0), 'magenta': ColourRange(288.0, 325.0),
+}
+
+
+@dataclass(frozen=True)
+class BlobParams:
+    """What to look for: a colour range per target, and the smallest blob that counts.
+
+    Attributes
+    ----------
+    targets : tuple of (str, ColourRange)
+        Target name and its colour, in the order of the results (a mapping name ->
+        ColourRange is taken too); names unique and non-empty.
+    min_area : int
+        Pixels of the smallest blob that is seen, in [1, 1e9].
+    """
+
+    targets: tuple[tuple[str, ColourRange], ...]
+    min_area: int = 4
+
+    def __post_init__(self) -> None:
+        items = (tuple(self.targets.items()) if isinstance(self.targets, Mapping)
+                 else tuple(tuple(t) for t in self.targets))
+        object.__setattr__(self, 'targets', items)
+        names = [n for n, _ in items]
+        for name, rng in items:
+            if not isinstance(name, str) or not name:
+                raise ValueError(f'targets: name {name!r} must be a non-empty string')
+            if not isinstance(rng, ColourRange):
+                raise ValueError(f'targets[{name!r}] = {rng!r} must be a ColourRange')
+        if len(set(names)) != len(names):
+            raise ValueError(f'targets: a name is used twice: {names}')
+        if not isinstance(self.min_area, (int, np.integer)):
+            raise ValueError(f'min_area = {self.min_area!r} must be an integer in [1, 1e+09]')
+        _check('min_area', self.min_area, 1, 1e9)
+
+
+@dataclass(frozen=True)
+class Blob:
+    """One target in one image.
+
+    Attributes
+    ----------
+    seen : bool
+        A blob of at least ``min_area`` pixels.
+    bearing : float
+        Relative to the heading [rad], in (-pi, pi]; NaN when not seen.
+    area : int
+        Pixels of the largest component (reported below ``min_area`` too; 0: none).
+    width : float
+        Angular width [rad]; NaN when not seen.
+    column : float
+        Column centroid [px], in [-0.5, W - 0.5) on a strip; NaN when not seen.
+    """
+
+    seen: bool
+    bearing: float
+    area: int
+    width: float
+    column: float
+
+
+def hsv(image: np.ndarray, encoding: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hue [deg], saturation and value of each pixel (hexcone model, module docstring).
+
+    Parameters
+    ----------
+    image : np.ndarray, shape (H, W, 3) or (H, W, 4), uint8
+        In ``encoding`` (one of :data:`ENCODINGS`; alpha is ignored).
+    encoding : str
+
+    Returns
+    -------
+    h, s, v : np.ndarray, shape (H, W)
+        ``h`` in [0, 360) (0 for grey), ``s`` and ``v`` in [0, 1].
+
+    Raises
+    ------
+    ValueError
+        An encoding not in :data:`ENCODINGS`, or an image of another shape or dtype.
+    """
+    if encoding not in ENCODINGS:
+        raise ValueError(f'image encoding {encoding!r} is not supported: use one of '
+                         + ', '.join(repr(e) for e in ENCODINGS))
+    a = np.asarray(image)
+    n = ENCODINGS[encoding]
+    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != n:
+        raise ValueError(f'a {encoding} image is uint8 of shape (H, W, {n}), got {a.dtype} '
+                         f'of shape {a.shape}')
+    i_r, i_b = (2, 0) if encoding == 'bgr8' else (0, 2)
+    r, g, b = (a[..., i].astype(np.float64) * (1.0 / 255.0) for i in (i_r, 1, i_b))
+    v = np.maximum(np.maximum(r, g), b)
+    c = v - np.minimum(np.minimum(r, g), b)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        s = np.where(v > 0.0, c / v, 0.0)
+        ic = np.where(c > 0.0, 1.0 / c, 0.0)
+    h = np.where(v == r, np.remainder((g - b) * ic, 6.0),
+                 np.where(v == g, (b - r) * ic + 2.0, (r - g) * ic + 4.0))
+    h = np.where(c > 0.0, 60.0 * h, 0.0)
+    h[h >= 360.0] = 0.0
+    return h, s, v
+
+
+def _merge_seam(labels: np.ndarray, n: int) -> np.ndarray:
+    """``labels`` with components that touch across the seam (last column, first column;
+    8-connected) given one label (the smallest of them)."""
+    left, right = labels[:, 0], labels[:, -1]
+    if not (left.any() and right.any()):
+        return labels
+    pairs = [np.stack((right[a], left[b]), axis=1)
+             for a, b in ((slice(None), slice(None)), (slice(1, None), slice(None, -1)),
+                          (slice(None, -1), slice(1, None)))]
+    pairs = np.concatenate(pairs)
+    pairs = np.unique(pairs[(pairs[:, 0] > 0) & (pairs[:, 1] > 0)], axis=0)
+    if len(pairs) == 0:
+        return labels
+    root = np.arange(n + 1)
+
+    def find(i: int) -> int:
+        while root[i] != i:
+            i = root[i]
+        return int(i)
+
+    for i, j in pairs:
+        a, b = find(int(i)), find(int(j))
+        root[max(a, b)] = min(a, b)
+    return np.array([find(i) for i in range(n + 1)])[labels]
+
+
+def _columns_unwrapped(cols: np.ndarray, width: int) -> np.ndarray:
+    """Columns of a blob on a closed strip, shifted by ``width`` where needed so that the
+    blob is one run: the cut is at the widest gap between its occupied columns."""
+    occupied = np.unique(cols)
+    gaps = np.diff(np.append(occupied, occupied[0] + width))
+    start = occupied[(int(np.argmax(gaps)) + 1) % len(occupied)]
+    return np.where(cols < start, cols + width, cols)
+
+
+def detect(image: np.ndarray, encoding: str, camera: CameraModel, params: BlobParams
+           ) -> dict[str, Blob]:
+    """Find each target's blob (module docstring for the model).
+
+    Parameters
+    ----------
+    image : np.ndarray, shape (H, W, 3) or (H, W, 4), uint8
+        ``H, W = camera.height, camera.width``.
+    encoding : str
+        ``'rgb8'``, ``'bgr8'`` or ``'rgba8'`` (:data:`ENCODINGS`).
+    camera : Pinhole or Panoramic
+        The model of the camera that took the image (:mod:`cr_sim.core.camera`).
+    params : BlobParams
+
+    Returns
+    -------
+    dict of str to Blob
+        One per target, in the order of ``params.targets``.
+
+    Raises
+    ------
+    ValueError
+        An unsupported encoding (one line naming it and the accepted ones), or an image
+        whose shape is not the camera's.
+    """
+    h, s, v = hsv(image, encoding)
+    if h.shape != (camera.height, camera.width):
+        raise ValueError(f'the image is {h.shape[0]} x {h.shape[1]} (H x W), the camera '
+                         f'{camera.height} x {camera.width}')
+    out = {}
+    for name, rng in params.targets:
+        labels, n = ndimage.label(rng.mask(h, s, v), structure=_EIGHT)
+        if n == 0:
+            out[name] = Blob(False, math.nan, 0, math.nan, math.nan)
+            continue
+        if camera.wraps and camera.width > 1:
+            labels = _merge_seam(labels, n)
+        area = np.bincount(labels.ravel(), minlength=n + 1)
+        area[0] = 0
+        best = int(np.argmax(area))
+        if area[best] < params.min_area:
+            out[name] = Blob(False, math.nan, int(area[best]), math.nan, math.nan)
+            continue
+        cols = np.nonzero(labels == best)[1].astype(np.float64)
+        if camera.wraps:
+            cols = _columns_unwrapped(cols, camera.width)
+            u = float(np.mean(cols))
+            width = (cols.max() - cols.min() + 1.0) * camera.angle_per_pixel
+            u = (u + 0.5) % camera.width - 0.5
+        else:
+            u = float(np.mean(cols))
+            edges = camera.bearing_of_column(np.array((cols.min() - 0.5, cols.max() + 0.5)))
+            width = abs(float(edges[0] - edges[1]))
+        out[name] = Blob(True, float(camera.bearing_of_column(u)), int(area[best]),
+                         float(width), u)
+    return out
+
+
+def bearings(blobs: Mapping[str, Blob], names: tuple[str, ...] | list[str]) -> np.ndarray:
+    """The bearings of ``names`` in that order, as the ``camera`` topic's positions.
+
+    Parameters
+    ----------
+    blobs : Mapping of str to Blob
+        From :func:`detect`.
+    names : sequence of str, length T
+        E.g. ``('destination', 'L1', ...)``; a name without a blob is not seen.
+
+    Returns
+    -------
+    np.ndarray, shape (T,)
+        Bearing [rad], NaN = not seen.
+    """
+    return np.array([blobs[n].bearing if n in blobs else math.nan for n in names],
+                    dtype=np.float64)
