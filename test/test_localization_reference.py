@@ -1,7 +1,7 @@
 """The place module's Markov localization: its compiled updates (MarkovLocalizer, through
 clis_modules.core.localization_fused) give the beliefs of the paper's updates as written in
 numpy and scipy (clis_modules.core.localization_reference), bit for bit, on random beliefs,
-odometry and bearings."""
+odometry and bearings; the reference reads only the localizer's public names."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def _localizer(floor: float) -> MarkovLocalizer:
 
 def _belief(loc: MarkovLocalizer, seed: int, sharpness: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    p = rng.random(loc.shape) ** sharpness * loc._free
+    p = rng.random(loc.shape) ** sharpness * loc.free
     return p / p.sum()
 
 
@@ -50,10 +50,10 @@ def test_predict_is_the_reference(floor, seed, sharpness, odo, special):
     loc = _localizer(floor)
     dx, dy, dth = odo if special is None else special
     loc.set_belief(_belief(loc, seed, sharpness))
-    p = loc._p.copy()                      # set_belief normalises again
+    p = loc.belief_grid.copy()                      # set_belief normalises again
     want = ref.predict(loc, p, dx, dy, dth)
     loc.predict(dx, dy, dth)
-    assert loc._p.tobytes() == want.tobytes()
+    assert loc.belief_grid.tobytes() == want.tobytes()
 
 
 @PROPERTY
@@ -62,10 +62,10 @@ def test_predict_is_the_reference(floor, seed, sharpness, odo, special):
 def test_update_is_the_reference(floor, seed, sharpness, z):
     loc = _localizer(floor)
     loc.set_belief(_belief(loc, seed, sharpness))
-    p = loc._p.copy()
+    p = loc.belief_grid.copy()
     want = ref.update(loc, p, z)
     loc.update(z)
-    assert loc._p.tobytes() == want.tobytes()
+    assert loc.belief_grid.tobytes() == want.tobytes()
 
 
 def test_a_trajectory_is_the_reference():
@@ -73,7 +73,7 @@ def test_a_trajectory_is_the_reference():
     loc = _localizer(1e-6)
     loc.reset()
     rng = np.random.default_rng(11)
-    p = loc._p.copy()
+    p = loc.belief_grid.copy()
     for _ in range(30):
         dx, dy, dth = rng.normal(0.0, [0.2, 0.05, 0.5])
         z = rng.uniform(-math.pi, math.pi, 4)
@@ -81,7 +81,7 @@ def test_a_trajectory_is_the_reference():
         p = ref.update(loc, ref.predict(loc, p, dx, dy, dth), z)
         loc.predict(dx, dy, dth)
         loc.update(z)
-        assert loc._p.tobytes() == p.tobytes()
+        assert loc.belief_grid.tobytes() == p.tobytes()
     assert p.max() > 10 * p.mean()            # the belief has concentrated
 
 
@@ -99,10 +99,10 @@ def test_any_rectangular_grid_is_the_reference(seed, width, height, cell, n_head
     loc = MarkovLocalizer(prm, lm, Floor(-0.5 * width, -0.5 * height, 0.5 * width,
                                          0.5 * height))
     loc.set_belief(_belief(loc, seed, sharpness))
-    p = loc._p.copy()
+    p = loc.belief_grid.copy()
     moved = ref.predict(loc, p, *odo)
     loc.predict(*odo)
-    assert loc._p.tobytes() == moved.tobytes()
+    assert loc.belief_grid.tobytes() == moved.tobytes()
     want = ref.update(loc, moved, z)
     loc.update(z)
-    assert loc._p.tobytes() == want.tobytes()
+    assert loc.belief_grid.tobytes() == want.tobytes()

@@ -10,11 +10,11 @@ from clis_learner.core.config import load_clis_params
 from clis_modules.core.modules import arena_map, make_module
 from clis_modules.core.schedule import (
     STALL_WARNING,
+    Log,
     ModuleSchedule,
-    Observe,
     Propose,
+    PublishObservation,
     ResetTimer,
-    Say,
     off_grid_rng,
 )
 from clis_modules.core.streams import AgentStream
@@ -66,7 +66,7 @@ class Graph:
 
     def step(self, call, *args) -> list:
         call(*args)
-        got = self.s.drain()
+        got = self.s.pop_actions()
         self.out += got
         return got
 
@@ -233,15 +233,16 @@ def test_the_other_modules_instants_are_observed_in_order_once(setup):
     for k in range(31):
         g.tick(k)
     g.step(g.s.end, T0 + 31 * DT)
-    seq = [(type(a).__name__, round(a.t - T0, 6) if isinstance(a, Observe)
-            else round(a.proposal.t - T0, 6)) for a in g.out if isinstance(a, Observe | Propose)]
-    assert seq == [('Propose', 0.0), ('Observe', 0.25), ('Propose', 0.5), ('Observe', 0.75),
-                   ('Propose', 1.0), ('Observe', 1.25), ('Propose', 1.5)]
+    seq = [('observe', round(a.t - T0, 6)) if isinstance(a, PublishObservation)
+           else ('propose', round(a.proposal.t - T0, 6))
+           for a in g.out if isinstance(a, PublishObservation | Propose)]
+    assert seq == [('propose', 0.0), ('observe', 0.25), ('propose', 0.5), ('observe', 0.75),
+                   ('propose', 1.0), ('observe', 1.25), ('propose', 1.5)]
     alone = Graph(setup, 'view', condition=[('view', 0.5)])
     alone.start()
     for k in range(11):
         alone.tick(k)
-    assert not [a for a in alone.out if isinstance(a, Observe)]
+    assert not [a for a in alone.out if isinstance(a, PublishObservation)]
 
 
 def test_an_observation_does_not_overtake_the_modules_own_decision(setup):
@@ -254,7 +255,7 @@ def test_an_observation_does_not_overtake_the_modules_own_decision(setup):
     for k in range(10, 16):
         g.readings(T0 + k * DT, wheels=False)
     g.step(g.s.end, T0 + 16 * DT)
-    assert [round(a.t - T0, 6) for a in g.out if isinstance(a, Observe)] == [0.25]
+    assert [round(a.t - T0, 6) for a in g.out if isinstance(a, PublishObservation)] == [0.25]
 
 
 def test_the_place_module_observes_once_the_wheel_reading_is_in(setup):
@@ -263,10 +264,10 @@ def test_the_place_module_observes_once_the_wheel_reading_is_in(setup):
     for k in range(5):
         g.tick(k)
     g.tick(5, wheels=False)
-    assert not [a for a in g.out if isinstance(a, Observe)]
+    assert not [a for a in g.out if isinstance(a, PublishObservation)]
     g.s.readings.add_wheels(T0 + 5 * DT, np.array([0.1, 0.12]))
     g.tick(6)
-    assert [round(a.t - T0, 6) for a in g.out if isinstance(a, Observe)] == [0.25]
+    assert [round(a.t - T0, 6) for a in g.out if isinstance(a, PublishObservation)] == [0.25]
 
 
 class Wheels:
@@ -325,7 +326,7 @@ def test_announced_parameters_that_do_not_come_time_out(setup):
     g.step(g.s.on_wall)
     (p,) = g.proposals()
     assert p.version == 0
-    assert [a.level for a in g.out if isinstance(a, Say)] == ['warning']
+    assert [a.level for a in g.out if isinstance(a, Log)] == ['warning']
 
 
 def test_parameters_received_during_an_episode_wait_for_the_next(setup):
@@ -339,7 +340,7 @@ def test_parameters_received_during_an_episode_wait_for_the_next(setup):
     g.start(T0 + 1.0)
     assert g.s.decider.version == 1
     g.step(g.s.set_parameters, 'innate', *_params(g, 3)[1:])
-    assert g.s.decider.version == 1 and isinstance(g.out[-1], Say)
+    assert g.s.decider.version == 1 and isinstance(g.out[-1], Log)
 
 
 # ------------------------------------------------------------------------------ resending, stalls
@@ -368,8 +369,8 @@ def test_a_decision_due_for_long_says_why_once(setup):
     for _ in range(int(STALL_WARNING / 0.5) + 4):
         g.wall += 0.5
         g.step(g.s.on_wall)
-    (say,) = [a for a in g.out if isinstance(a, Say)]
-    assert say.level == 'warning' and say.text.startswith('due: waiting for 2.0 s')
+    (log,) = [a for a in g.out if isinstance(a, Log)]
+    assert log.level == 'warning' and log.text.startswith('due: waiting for 2.0 s')
     g.readings(T0)
     g.step(g.s.on_wall)
     assert [p.t for p in g.proposals()] == [T0]

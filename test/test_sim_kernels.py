@@ -9,23 +9,22 @@ from types import SimpleNamespace
 from clis_modules.core.decider import Decider
 from clis_modules.core.features import RbfGrid, uniform_centers
 from clis_modules.core.localization import MarkovLocalizer
-from clis_modules.core.localization_fused import EVIDENCE_MIN as _EVIDENCE_MIN
-from clis_modules.core.localization_fused import EXP_LOG_LIK_MIN as _EXP_LOG_LIK_MIN
-from clis_modules.core.localization_fused import LOG_LIK_MIN as _LOG_LIK_MIN
-from clis_modules.core.localization_fused import (
-    _blur,
-    _gaussian_weights,
-    _log_likelihood,
-    _row_max,
-    _sub_pose_sums,
-    _unclipped,
-)
+from clis_modules.core.localization_reference import EVIDENCE_MIN, EXP_LOG_LIK_MIN, LOG_LIK_MIN
 from clis_modules.core.modules import arena_map, load_module_params
 from cr_sim.core import kernels
 from cr_sim.core.arena import load_arena
 from cr_sim.core.geometry import box_planes, disc_gap, slab_planes, wrap_angle, wrap_angles
 from cr_sim.core.robot import clamp_wheels, integrate_arc, twist_to_wheels, wheels_to_twist
 from cr_sim.core.sim import Simulator, load_sim_params
+from localization_kernels import (
+    blur,
+    gaussian_weights,
+    log_likelihood,
+    row_max,
+    shift_pose,
+    sub_pose_sums,
+    unclipped,
+)
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -176,7 +175,7 @@ def test_wrap_in_scan_matches_wrap_angles_at_the_edges():
 
 
 def _shift_reference(loc, p, dx, dy, dtheta):
-    """The localization's motion shift as written before the kernel (numpy)."""
+    """The localization's motion shift in numpy, array by array."""
     n = loc.shape[1]
     c, s = np.cos(loc.thetas), np.sin(loc.thetas)
     sx = np.clip((c * dx - s * dy) / loc.cell, -n - 1.0, n + 1.0)
@@ -207,13 +206,27 @@ def localizer():
     return MarkovLocalizer(load_module_params().place.localization, lm, half, boxes)
 
 
+def _shift(loc, p, dx, dy, dtheta):
+    """Steps 1-2 of the motion update on ``loc``'s grid, compiled (shift_pose)."""
+    return shift_pose(p, np.cos(loc.thetas), np.sin(loc.thetas), dx, dy, dtheta, loc.cell,
+                      loc.bin)
+
+
+def _log_likelihood(loc, z):
+    """log_likelihood on ``loc``'s grid at the bearings ``z`` (NaN: not seen)."""
+    seen = np.isfinite(z)
+    zs = np.where(seen, z, 0.0)
+    return log_likelihood(np.cos(zs), np.sin(zs), seen, loc.kappa, loc.cos_phi, loc.sin_phi,
+                          loc.cos_th, loc.sin_th)
+
+
 def test_localization_shift_kernel_is_the_reference_bit_for_bit(localizer):
     rng = np.random.default_rng(2)
     p = rng.random(localizer.shape)
     for dx, dy, dth in [(0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (0.0, 0.0, math.pi / 6)] + [
             tuple(rng.normal(0.0, s) for s in (0.3, 0.1, 1.0)) for _ in range(40)] + [
             (5.0, -4.0, 20.0)]:
-        np.testing.assert_array_equal(localizer._shift(p, dx, dy, dth),
+        np.testing.assert_array_equal(_shift(localizer, p, dx, dy, dth),
                                       _shift_reference(localizer, p, dx, dy, dth))
 
 
@@ -226,8 +239,8 @@ def test_localization_blur_is_scipy_gaussian_filter_bit_for_bit():
                                        p=[0.1, 0.8, 0.1])) for _ in range(2))
         want = ndimage.gaussian_filter(p, sigma=(s_th, s_xy, s_xy), truncate=3.0,
                                        mode=('wrap', 'reflect', 'reflect'))
-        w = _gaussian_weights(s_xy, 3.0)
-        np.testing.assert_array_equal(_blur(p, _gaussian_weights(s_th, 3.0), w, w), want)
+        w = gaussian_weights(s_xy, 3.0)
+        np.testing.assert_array_equal(blur(p, gaussian_weights(s_th, 3.0), w, w), want)
 
 
 def test_localization_likelihood_is_the_von_mises_sum(localizer):
@@ -236,10 +249,9 @@ def test_localization_likelihood_is_the_von_mises_sum(localizer):
     z = np.array([0.3, -2.0, np.nan, 2.9])
     seen = np.isfinite(z)
     zs = np.where(seen, z, 0.0)
-    got = _log_likelihood(np.cos(zs), np.sin(zs), seen, loc.kappa, loc._cos_phi, loc._sin_phi,
-                          loc._cos_th, loc._sin_th)
-    phi = np.arctan2(loc._sin_phi, loc._cos_phi)                        # (Q, M, nx, ny)
-    theta = np.arctan2(loc._sin_th, loc._cos_th)                        # (K, T)
+    got = _log_likelihood(loc, z)
+    phi = np.arctan2(loc.sin_phi, loc.cos_phi)                          # (Q, M, nx, ny)
+    theta = np.arctan2(loc.sin_th, loc.cos_th)                          # (K, T)
     mu = phi[:, None, None] - theta.T[None, :, :, None, None, None]     # (Q, T, K, M, ...)
     want = loc.kappa * np.cos(zs[None, None, None, :, None, None] - mu)
     want = (want * seen[None, None, None, :, None, None]).sum(axis=3)
@@ -254,23 +266,21 @@ def test_localization_cell_likelihood_is_the_reference_bit_for_bit(localizer):
     for _ in range(60):
         z = rng.uniform(-math.pi, math.pi, len(loc.landmarks_xy))
         z[rng.random(len(z)) < 0.3] = np.nan
-        seen = np.isfinite(z)
-        if not seen.any():
+        if not np.isfinite(z).any():
             continue
-        zs = np.where(seen, z, 0.0)
-        rows = _log_likelihood(np.cos(zs), np.sin(zs), seen, loc.kappa, loc._cos_phi,
-                               loc._sin_phi, loc._cos_th, loc._sin_th).reshape(loc._n_sub, -1)
-        v = np.maximum(rows - rows.max(), _LOG_LIK_MIN)
-        e = np.full(v.shape, _EXP_LOG_LIK_MIN)
-        e[v > _LOG_LIK_MIN] = np.exp(v[v > _LOG_LIK_MIN])
+        ll = _log_likelihood(loc, z)
+        rows = ll.reshape(ll.shape[0], -1)
+        v = np.maximum(rows - rows.max(), LOG_LIK_MIN)
+        e = np.full(v.shape, EXP_LOG_LIK_MIN)
+        e[v > LOG_LIK_MIN] = np.exp(v[v > LOG_LIK_MIN])
         want = e[0].copy()
         for row in e[1:]:
             want += row
-        cell_max = _row_max(rows)
+        cell_max = row_max(rows)
         np.testing.assert_array_equal(cell_max, rows.max(axis=0))
         best = float(cell_max.max())
-        cells, vals = _unclipped(rows, cell_max, best, _LOG_LIK_MIN)
-        got = _sub_pose_sums(rows, cells, best, _LOG_LIK_MIN, _EXP_LOG_LIK_MIN, np.exp(vals))
+        cells, vals = unclipped(rows, cell_max, best, LOG_LIK_MIN)
+        got = sub_pose_sums(rows, cells, best, LOG_LIK_MIN, EXP_LOG_LIK_MIN, np.exp(vals))
         np.testing.assert_array_equal(got, want)
 
 
@@ -290,45 +300,42 @@ def test_rbf_single_input_is_the_batch_row_bit_for_bit():
 
 
 def _predict_reference(loc, dx, dy, dtheta):
-    """MarkovLocalizer.predict as written before the fused kernel (a composition of kernels)."""
-    p = loc._shift(loc._p, dx, dy, dtheta)
+    """MarkovLocalizer.predict as the step kernels composed (test/localization_kernels.py)."""
+    p = _shift(loc, loc.belief_grid, dx, dy, dtheta)
     prm = loc.params
     s_xy = (prm.trans_noise * math.hypot(dx, dy) + prm.trans_noise_min) / loc.cell
     s_th = (prm.rot_noise * abs(dtheta) + math.radians(prm.rot_noise_min_deg)) / loc.bin
     if s_xy > 0.0 or s_th > 0.0:
-        w_xy = _gaussian_weights(s_xy, 3.0)
-        p = _blur(p, _gaussian_weights(s_th, 3.0), w_xy, w_xy)
-    p *= loc._free
+        w_xy = gaussian_weights(s_xy, 3.0)
+        p = blur(p, gaussian_weights(s_th, 3.0), w_xy, w_xy)
+    p *= loc.free
     total = p.sum()
     if not (total > 0.0 and math.isfinite(total)):
-        return loc._uniform.copy()
+        return loc.uniform.copy()
     p /= total
     return p
 
 
 def _update_reference(loc, z):
-    """MarkovLocalizer.update as written before the fused kernels (a composition of kernels)."""
-    seen = np.isfinite(z)
-    if not seen.any():
-        return loc._p
-    zs = np.where(seen, z, 0.0)
-    loglik = _log_likelihood(np.cos(zs), np.sin(zs), seen, loc.kappa, loc._cos_phi,
-                             loc._sin_phi, loc._cos_th, loc._sin_th)
-    rows = loglik.reshape(loc._n_sub, -1)
-    cell_max = _row_max(rows)
+    """MarkovLocalizer.update as the step kernels composed (test/localization_kernels.py)."""
+    if not np.isfinite(z).any():
+        return loc.belief_grid
+    loglik = _log_likelihood(loc, z)
+    rows = loglik.reshape(loglik.shape[0], -1)
+    cell_max = row_max(rows)
     best = float(cell_max.max())
-    cells, vals = _unclipped(rows, cell_max, best, _LOG_LIK_MIN)
-    lik = _sub_pose_sums(rows, cells, best, _LOG_LIK_MIN, _EXP_LOG_LIK_MIN,
-                         np.exp(vals)).reshape(loc.shape)
-    p = lik * loc._p
+    cells, vals = unclipped(rows, cell_max, best, LOG_LIK_MIN)
+    lik = sub_pose_sums(rows, cells, best, LOG_LIK_MIN, EXP_LOG_LIK_MIN,
+                        np.exp(vals)).reshape(loc.shape)
+    p = lik * loc.belief_grid
     total = p.sum()
-    if not (total > _EVIDENCE_MIN and math.isfinite(total)):
-        p = lik * loc._uniform
+    if not (total > EVIDENCE_MIN and math.isfinite(total)):
+        p = lik * loc.uniform
         total = p.sum()
     f = loc.params.floor
     p *= (1.0 - f) / total
     if f > 0.0:
-        p += loc._floor_uniform
+        p += f * loc.uniform
     return p
 
 
@@ -364,7 +371,7 @@ def test_localization_fused_predict_and_update_are_the_reference_bit_for_bit(wor
             x = y = th = 0.0
         want = _predict_reference(loc, x, y, th)
         loc.predict(x, y, th)
-        np.testing.assert_array_equal(loc._p, want)
+        np.testing.assert_array_equal(loc.belief_grid, want)
         z = np.array(sim.observe().landmark_bearings)
         if step % 5 == 1:                                    # random bearings, some unseen
             z = rng.uniform(-math.pi, math.pi, len(z))
@@ -373,7 +380,7 @@ def test_localization_fused_predict_and_update_are_the_reference_bit_for_bit(wor
             z[:] = np.nan
         want = _update_reference(loc, z)
         loc.update(z)
-        np.testing.assert_array_equal(loc._p, want)
+        np.testing.assert_array_equal(loc.belief_grid, want)
         n_checked += 1
         if res.done:
             sim.reset('random')

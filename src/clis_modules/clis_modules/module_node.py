@@ -63,11 +63,11 @@ from clis_modules import conversions as conv
 from clis_modules.core.modules import arena_map, condition_periods, make_module
 from clis_modules.core.schedule import (
     READINGS_DEPTH,
+    Log,
     ModuleSchedule,
-    Observe,
     Propose,
+    PublishObservation,
     ResetTimer,
-    Say,
 )
 from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from cr_sim import conversions as rconv
@@ -208,17 +208,17 @@ class ModuleNode(GraphNode):
         """Call the schedule, then publish what it gives, in order, and let the executor wake
         the node for the readings of a due decision only while it waits for them."""
         step(*args)
-        for action in self.core.drain():
+        for action in self.core.pop_actions():
             if isinstance(action, Propose):
                 self.pub.publish(conv.proposal_msg(action.proposal, action.stamp))
                 if not action.again:
                     self._decided(action.proposal.t)
-            elif isinstance(action, Observe):
+            elif isinstance(action, PublishObservation):
                 self.pub_obs.publish(conv.observation_msg(self.core.name, action.t,
                                                           action.features))
             elif isinstance(action, ResetTimer):
                 self.timer.reset()
-            elif isinstance(action, Say):
+            elif isinstance(action, Log):
                 getattr(self.get_logger(), action.level)(action.text)
         self.on_demand.active = self.core.waiting
 

@@ -1,61 +1,17 @@
 """Grid Markov localization on landmark bearings: the state of the place module (paper III-D).
 
-The belief ``b_pl`` is a probability over a grid of poses ``(x, y, theta)``: square cells of
-side ``cell_size`` over the floor (a square, or any rectangle), times ``n_headings`` heading
-bins.
-Paper: 15 cm and 30 deg over 3 m x 3 m, "450 states"; that grid has 20 x 20 x 12 = 4800 cells
-(450 matches neither 20 x 20 = 400 nor any whole number of 30 deg bins), so we keep the stated
-resolutions and get 4800 cells; both resolutions are parameters.
+The model (the grid, its array layout, the initial belief, the motion update
+``b(x') <- sum_x Pr(x' | x, u) b(x)`` and the sensor update ``b(x) <- eta Pr(s | x) b(x)`` on
+the landmark bearings) is :mod:`clis_modules.core.localization_reference`'s docstring, and its
+functions are the two updates as the paper writes them, in numpy and scipy.
 
-Array layout: ``belief_grid[k, i, j]`` is the probability of heading bin ``k`` (centre
-``theta_k = k 2 pi / n_headings``), x cell ``i`` and y cell ``j`` (centres ``xs[i]``,
-``ys[j]``); the flat belief (the place module's feature vector) is its C-order ravel.
-
-Initial belief: uniform over the free cells (paper: the robot does not know its start).
-Cells whose centre lies inside an obstacle box (optional) always hold 0.
-
-Motion update (paper: ``b(x') <- sum_x Pr(x' | x, u) b(x)``), from odometry ``(dx, dy, dtheta)``
-expressed in the robot frame at the start of the interval:
-
-1. every heading layer ``k`` is shifted by the displacement rotated into the world,
-   ``R(theta_k) (dx, dy)``, with bilinear weights (mass conserving; mass leaving the floor is
-   dropped: those poses contradict the odometry);
-2. the heading axis is rolled by ``dtheta`` (periodic, linear weights between bins);
-3. Gaussian noise: a blur of standard deviation ``trans_noise * |d| + trans_noise_min`` in x and
-   y (reflecting at the walls) and ``rot_noise * |dtheta| + rot_noise_min`` in heading
-   (periodic) -- :func:`scipy.ndimage.gaussian_filter`'s arithmetic, compiled (:func:`_blur`,
-   bit-identical: tested). The ``*_min`` terms also stand for the
-   spread of the true pose inside a cell; they are added per call, so call ``predict`` once per
-   place-module period (not once per simulator tick).
-
-Sensor update (paper: ``b(x) <- eta Pr(s | x) b(x)``): the bearings ``s`` of the landmarks that
-are seen, each with a von Mises likelihood around the bearing expected from the cell centre,
-``Pr(s | x) = prod_m exp(kappa cos(s_m - mu_m(x)))`` with ``kappa = 1 / sigma_bearing^2`` (the
-von Mises approximation of a wrapped Gaussian of std ``sigma_bearing``). The true pose is
-anywhere inside its cell, so a cell's likelihood is the mean over ``sub_cells^2 x sub_headings``
-sub-poses spread inside it (with only the cell centre, the 30 deg bins force a wide
-``sigma_bearing`` and the position becomes ambiguous along ridges near the corners: measured,
-65 % of MAP cells within 1 cell of the truth against 94 % with 2 x 2 x 3 sub-poses). The
-bearing expected at a sub-pose ``(p, theta)`` is ``mu_m = phi_m(p) - theta``, ``phi_m(p)`` the
-direction of landmark m from position p, so with ``A_m = s_m - phi_m(p)``::
-
-    sum_m kappa cos(s_m - mu_m) = kappa (C(p) cos theta - S(p) sin theta),
-    C(p) = sum_m cos A_m,  S(p) = sum_m sin A_m     (sums over the seen landmarks)
-
-``cos phi_m`` and ``sin phi_m`` of every sub-position are precomputed; an update forms C and S
-per sub-position (2 x 2 M products) and the log-likelihood of every sub-pose from them
-relative to the best, clipped 50 below it, then exp. A landmark that is not seen (NaN) adds
-no information (occlusion is not modelled). The result is normalised, then ``floor`` of a
-uniform belief is mixed in so that no pose is ever ruled out for good; a belief that
-contradicts the reading (evidence below 1e-15 of the best cell's likelihood: the kidnapped
-robot, or ``floor = 0``) restarts from the reading alone.
-
-Computation: the two updates as the paper writes them, in numpy and scipy, are
-:mod:`clis_modules.core.localization_reference`; :class:`MarkovLocalizer` runs each as one
-compiled call of :mod:`clis_modules.core.localization_fused` (the same arithmetic in the same
-order, bit-identical beliefs: tested), with its grid in a
+:class:`MarkovLocalizer` holds the grid and the belief, and runs each update as one compiled
+call of :mod:`clis_modules.core.localization_fused` (the same arithmetic in the same order,
+bit-identical beliefs: tested), with its grid in a
 :class:`~clis_modules.core.localization_fused.Grid` and its scratch arrays in a
-:class:`~clis_modules.core.localization_fused.Scratch`.
+:class:`~clis_modules.core.localization_fused.Scratch`; what the reference reads of the grid
+are its public read-only names (:attr:`MarkovLocalizer.free`, :attr:`MarkovLocalizer.cos_phi`,
+...).
 """
 
 from __future__ import annotations
@@ -68,13 +24,7 @@ from cr_sim.core.robot import integrate_arc, wheels_to_twist
 import numpy as np
 from numpy.typing import ArrayLike
 
-from clis_modules.core.localization_fused import (
-    Grid,
-    Scratch,
-    _shift_pose,
-    predict_into,
-    update_into,
-)
+from clis_modules.core.localization_fused import Grid, Scratch, predict_into, update_into
 
 if TYPE_CHECKING:
     from clis_modules.core.plugin import Floor
@@ -101,7 +51,8 @@ class LocalizationParams:
 
 
 class MarkovLocalizer:
-    """Belief over the pose grid with motion and sensor updates (module docstring).
+    """Belief over the pose grid with motion and sensor updates (the model:
+    :mod:`clis_modules.core.localization_reference`).
 
     Parameters
     ----------
@@ -126,6 +77,12 @@ class MarkovLocalizer:
         South-west corner of the grid [m].
     thetas : np.ndarray, shape (n_headings,)
         Heading-bin centres [rad], ``k 2 pi / n_headings``.
+    cell, bin : float
+        Cell side [m], heading bin ``2 pi / n_headings`` [rad].
+    kappa : float
+        ``1 / sigma_bearing^2`` of the von Mises likelihood of a bearing.
+    free, uniform, cos_phi, sin_phi, cos_th, sin_th : np.ndarray
+        The grid as the updates read it (read-only views; their properties).
     """
 
     def __init__(self, params: LocalizationParams, landmarks_xy: ArrayLike, floor: Floor,
@@ -158,13 +115,13 @@ class MarkovLocalizer:
                 free &= ~((gx >= x0) & (gx <= x1) & (gy >= y0) & (gy <= y1))
         if not free.any():
             raise ValueError('every grid cell lies inside an obstacle')
-        self._free = np.broadcast_to(free, self.shape).astype(np.float64)
-        self._uniform = self._free / self._free.sum()
-        self._floor_uniform = params.floor * self._uniform
+        free_k = np.broadcast_to(free, self.shape).astype(np.float64)
+        uniform = free_k / free_k.sum()
+        floor_uniform = params.floor * uniform
         # C order for the kernels (the same values; broadcast_to(...).astype keeps strides
         # with the heading fastest)
-        self._free, self._uniform, self._floor_uniform = (
-            np.ascontiguousarray(a) for a in (self._free, self._uniform, self._floor_uniform))
+        self._free, self._uniform, floor_uniform = (
+            np.ascontiguousarray(a) for a in (free_k, uniform, floor_uniform))
 
         # phi_m(p) = atan2(l_y - y, l_x - x): direction of landmark m from each sub-position p
         # (sub_cells^2 points inside each cell), and the sub-headings theta (sub_headings
@@ -176,21 +133,18 @@ class MarkovLocalizer:
                                     self.landmarks_xy[:, 0, None, None] - (gx[None] + ox))
                          for oy in off_xy] for ox in off_xy])           # (sx, sy, M, nx, ny)
         phi = phi.reshape(-1, m, n, ny)                                  # (Q, M, nx, ny)
-        self._cos_phi = np.ascontiguousarray(np.cos(phi))
-        self._sin_phi = np.ascontiguousarray(np.sin(phi))
+        cos_phi = np.ascontiguousarray(np.cos(phi))
+        sin_phi = np.ascontiguousarray(np.sin(phi))
         th_sub = self.thetas[:, None] + off_th[None, :]                 # (K, T)
-        self._cos_th = np.ascontiguousarray(np.cos(th_sub))
-        self._sin_th = np.ascontiguousarray(np.sin(th_sub))
-        self._cos_tk = np.ascontiguousarray(self._cos_th.T)
-        self._sin_tk = np.ascontiguousarray(self._sin_th.T)
-        self._n_sub = phi.shape[0] * len(off_th)
-        self._cos_k, self._sin_k = np.cos(self.thetas), np.sin(self.thetas)
+        cos_th = np.ascontiguousarray(np.cos(th_sub))
+        sin_th = np.ascontiguousarray(np.sin(th_sub))
         self._p = self._uniform.copy()
         # the compiled updates' view of the grid, and their scratch arrays
         self._grid = Grid(self.shape, self.cell, self.bin, self.kappa, params.floor,
-                          self._cos_k, self._sin_k, self._cos_phi, self._sin_phi, self._cos_th,
-                          self._sin_th, self._cos_tk, self._sin_tk, self._free, self._uniform,
-                          self._floor_uniform)
+                          np.cos(self.thetas), np.sin(self.thetas), cos_phi, sin_phi, cos_th,
+                          sin_th, np.ascontiguousarray(cos_th.T),
+                          np.ascontiguousarray(sin_th.T), self._free, self._uniform,
+                          floor_uniform)
         self._scratch = Scratch.for_grid(self._grid)
 
     # ------------------------------------------------------------------ state
@@ -202,14 +156,50 @@ class MarkovLocalizer:
     @property
     def belief_grid(self) -> np.ndarray:
         """The belief, shape ``(n_headings, nx, ny)`` (read-only view)."""
-        v = self._p.view()
-        v.flags.writeable = False
-        return v
+        return _read_only(self._p)
 
     @property
     def belief(self) -> np.ndarray:
         """The flat belief, shape (N,), the place module's features (read-only view)."""
         return self.belief_grid.reshape(-1)
+
+    # ------------------------------------------------------------------ the grid (read-only)
+
+    @property
+    def free(self) -> np.ndarray:
+        """1.0 on the free cells, 0.0 on those inside an obstacle, shape
+        ``(n_headings, nx, ny)`` (read-only view)."""
+        return _read_only(self._free)
+
+    @property
+    def uniform(self) -> np.ndarray:
+        """The uniform belief over the free cells, shape ``(n_headings, nx, ny)`` (read-only
+        view): the initial belief."""
+        return _read_only(self._uniform)
+
+    @property
+    def cos_phi(self) -> np.ndarray:
+        """``cos phi_m(p)``, ``phi_m(p)`` the direction of landmark m from sub-position q of
+        each cell, shape ``(Q, M, nx, ny)`` with ``Q = sub_cells^2`` (read-only view)."""
+        return _read_only(self._grid.cos_phi)
+
+    @property
+    def sin_phi(self) -> np.ndarray:
+        """``sin phi_m(p)``, as :attr:`cos_phi`."""
+        return _read_only(self._grid.sin_phi)
+
+    @property
+    def cos_th(self) -> np.ndarray:
+        """Cosine of sub-heading t of each heading bin k, shape ``(n_headings, T)`` with
+        ``T = sub_headings`` (read-only view)."""
+        return _read_only(self._grid.cos_th)
+
+    @property
+    def sin_th(self) -> np.ndarray:
+        """Sine of sub-heading t of each heading bin k, as :attr:`cos_th`."""
+        return _read_only(self._grid.sin_th)
+
+    # ------------------------------------------------------------------ the belief
 
     def set_belief(self, p: ArrayLike) -> None:
         """Replace the belief (shape (N,) or :attr:`shape`; normalised here)."""
@@ -241,6 +231,11 @@ class MarkovLocalizer:
             y to the left).
         dtheta : float
             Heading change [rad], counter-clockwise positive.
+
+        Notes
+        -----
+        The noise floors ``trans_noise_min``, ``rot_noise_min_deg`` are added per call: one
+        call per place-module period, not one per simulator tick.
         """
         prm = self.params
         # the noise of (a) motion: std proportional to the distance and the turn, plus a floor
@@ -288,13 +283,6 @@ class MarkovLocalizer:
             x, y, th = integrate_arc(x, y, th, v, omega, dt)
         self.predict(x, y, th)
 
-    def _shift(self, p: np.ndarray, dx: float, dy: float, dtheta: float) -> np.ndarray:
-        """Steps 1-2 of the motion update: every heading layer k shifted by
-        ``R(theta_k) (dx, dy)`` (bilinear, zero fill), then the heading axis rolled by
-        ``dtheta`` (periodic, linear weights between bins)
-        (:func:`~clis_modules.core.localization_fused._shift_pose`)."""
-        return _shift_pose(p, self._cos_k, self._sin_k, dx, dy, dtheta, self.cell, self.bin)
-
     # ------------------------------------------------------------------ sensor update
 
     def update(self, landmark_bearings: ArrayLike) -> None:
@@ -307,15 +295,15 @@ class MarkovLocalizer:
             information). Nothing seen: the belief is left unchanged.
         """
         # a fresh writable C array whatever the caller passes (a simulator observation is
-        # read-only): one compiled signature of _update_into for every caller
+        # read-only): one compiled signature of update_into for every caller
         z = np.array(landmark_bearings, dtype=np.float64).reshape(-1)
         if z.shape[0] != len(self.landmarks_xy):
             raise ValueError(f'expected {len(self.landmarks_xy)} landmark bearings, '
                              f'got {z.shape[0]}')
         # ln Pr(s | x') = sum_m kappa cos(s_m - mu_m(x')) + const  (von Mises per landmark),
-        # at every sub-pose x' of every cell, relative to the best one, clipped at
-        # _LOG_LIK_MIN (no denormals), then Pr(s | cell) and b(x) <- eta Pr(s | x) b(x) with
-        # the floor: one compiled call (_update_into); nothing seen: no change
+        # at every sub-pose x' of every cell, relative to the best one, clipped LOG_LIK_MIN
+        # below it (no denormals), then Pr(s | cell) and b(x) <- eta Pr(s | x) b(x) with the
+        # floor: one compiled call (update_into); nothing seen: no change
         p = np.empty(self.shape)
         if update_into(self._grid, self._scratch, self._p, z, p):
             self._p = p
@@ -327,3 +315,10 @@ class MarkovLocalizer:
             return self._uniform.copy()
         p /= total
         return p
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a``."""
+    v = a.view()
+    v.flags.writeable = False
+    return v

@@ -1,20 +1,25 @@
 """The compiled path of the grid Markov localization (:mod:`clis_modules.core.localization`):
-its motion and sensor updates, each as one compiled call, the same arithmetic as the reference
-(:mod:`clis_modules.core.localization_reference`), bit for bit (tested).
+its motion and sensor updates, each as one compiled call, the arithmetic of the reference
+(:mod:`clis_modules.core.localization_reference`, which has the model and its constants) in the
+same order, bit for bit (tested).
 
 :func:`predict_into` and :func:`update_into` are the entry points; what they need of the grid
 is a :class:`Grid` and their scratch arrays a :class:`Scratch`, both made once per localizer
-(:meth:`Grid.of`, :meth:`Scratch.for_grid`).
+(:class:`~clis_modules.core.localization.MarkovLocalizer` builds its :class:`Grid`, then
+:meth:`Scratch.for_grid`).
 
-Reference kernels (compiled, each one step of the reference, tested against numpy and scipy):
-:func:`_shift_pose` (steps 1-2 of the motion update), :func:`_blur` (step 3,
-``scipy.ndimage.gaussian_filter``'s arithmetic), :func:`_log_likelihood` (the von Mises sum at
-every sub-pose), :func:`_row_max`, :func:`_unclipped`, :func:`_sub_pose_sums` (the likelihood
-of every cell). Fused kernels (:func:`_predict_kernel`, :func:`_update_kernel`): the operations
-of the reference kernels and of numpy's sums (:func:`cr_sim.core.ufunc_loops.pairwise_sum`) in
-the same order, without their intermediate arrays; the sensor update skips only sub-poses that
-are clipped anyway (bounded by ``hypot(C, S)``), and its ``exp`` is numpy's own loop
-(:func:`cr_sim.core.ufunc_loops.exp_into`).
+Step kernels: :func:`_shift_into` (steps 1-2 of the motion update, the reference's ``shift``)
+and :func:`_blur_passes` (step 3, ``scipy.ndimage.gaussian_filter``'s arithmetic). Fused kernels
+(:func:`_predict_kernel`, :func:`_update_kernel`): the operations of the reference's steps and
+of numpy's sums (:func:`cr_sim.core.ufunc_loops.pairwise_sum`) in the same order, without their
+intermediate arrays; the sensor update skips only sub-poses that are clipped anyway (bounded by
+``hypot(C, S)``), and its ``exp`` is numpy's own loop (:func:`cr_sim.core.ufunc_loops.exp_into`).
+The tests check each step against numpy and scipy, and the fused kernels against the steps
+composed (``test/localization_kernels.py``, ``test/test_sim_kernels.py``).
+
+One module over 500 lines: it is the compiled path as one piece, read beside the reference
+step by step; both updates work on the one layout of :class:`Grid` and :class:`Scratch` that
+the entry points hand to the kernels, and no other module of the package calls a kernel.
 """
 
 from __future__ import annotations
@@ -27,16 +32,9 @@ from cr_sim.core.ufunc_loops import LOOPS, exp_into
 from cr_sim.core.ufunc_loops import pairwise_sum as _pairwise_sum
 import numpy as np
 
-__all__ = ['LOG_LIK_MIN', 'EXP_LOG_LIK_MIN', 'EVIDENCE_MIN', 'Grid', 'Scratch', 'predict_into',
-           'update_into']
+from clis_modules.core.localization_reference import EVIDENCE_MIN, EXP_LOG_LIK_MIN, LOG_LIK_MIN
 
-#: Log-likelihoods below the best by more than this are clipped (e^-50 ~ 2e-22: nothing).
-LOG_LIK_MIN = -50.0
-#: ``exp(LOG_LIK_MIN)`` as numpy's exp computes it.
-EXP_LOG_LIK_MIN = float(np.exp(np.array([LOG_LIK_MIN]))[0])
-#: Evidence ``sum_x Pr(s | x) b(x)`` (the best cell's likelihood scaled to 1) below which the
-#: belief is taken to contradict the reading, and the update restarts from the reading alone.
-EVIDENCE_MIN = 1e-15
+__all__ = ['Grid', 'Scratch', 'predict_into', 'update_into']
 
 
 @dataclass(frozen=True)
@@ -143,7 +141,8 @@ def predict_into(grid: Grid, scratch: Scratch, p: np.ndarray, dx: float, dy: flo
     the caller restarts from the uniform belief."""
     # = scipy.ndimage.gaussian_filter(p, (s_th, s_xy, s_xy), truncate=3.0,
     #                                 mode=('wrap', 'reflect', 'reflect')), unless both
-    # are 0; weights as _gaussian_weights computes them (numpy's exp: one call)
+    # are 0; weights as scipy.ndimage's _gaussian_kernel1d computes them (numpy's exp: one
+    # call)
     n_th = n_xy = 0
     if s_xy > 0.0 or s_th > 0.0:
         n_th = 2 * int(3.0 * s_th + 0.5) + 1 if s_th > 1e-15 else 0
@@ -169,19 +168,7 @@ def update_into(grid: Grid, scratch: Scratch, p: np.ndarray, z: np.ndarray,
                           out)
 
 
-# ------------------------------------------------------------------ reference kernels
-def _gaussian_weights(sigma: float, truncate: float) -> np.ndarray:
-    """Normalised Gaussian weights of std ``sigma`` [cells] over ``+-int(truncate sigma + 1/2)``
-    (``scipy.ndimage``'s kernel, its arithmetic), shape (2 r + 1,); empty when ``sigma`` is
-    (nearly) 0: that axis is not blurred."""
-    if not sigma > 1e-15:
-        return np.zeros(0)
-    radius = int(truncate * float(sigma) + 0.5)
-    x = np.arange(-radius, radius + 1)
-    phi = np.exp(-0.5 / (sigma * sigma) * x ** 2)
-    return phi / phi.sum()
-
-
+# ------------------------------------------------------------------ step kernels (motion)
 @njit
 def _extend(idx: int, n: int, wrap: bool) -> int:
     """Index in ``[0, n)`` of position ``idx`` of a line extended periodically (``wrap``) or
@@ -190,20 +177,6 @@ def _extend(idx: int, n: int, wrap: bool) -> int:
         return idx % n
     idx %= 2 * n
     return 2 * n - 1 - idx if idx >= n else idx
-
-
-@njit
-def _blur(p: np.ndarray, w0: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.ndarray:
-    """Separable Gaussian blur of ``p`` (K, nx, ny), C-contiguous: axis 0 periodic (``wrap``),
-    axes 1 and 2 mirrored at the walls (``reflect``), one axis after the other, each with its
-    symmetric weights ``w`` (2 r + 1,) (empty: the axis is skipped). A new array
-    (:func:`_blur_passes`).
-
-    ``scipy.ndimage.gaussian_filter``'s arithmetic (its correlate1d of a symmetric kernel:
-    ``out = x[0] w[r] + sum_{j = -r .. -1} (x[j] + x[-j]) w[r + j]``, in that order), so the
-    results are the same bit for bit; the loops run over whole contiguous rows.
-    """
-    return _blur_passes(p.copy(), np.empty_like(p), w0, w1, w2)
 
 
 @njit
@@ -225,8 +198,14 @@ def _scaled(d: np.ndarray, a: np.ndarray, w: float) -> None:
 @njit
 def _blur_passes(src: np.ndarray, dst: np.ndarray, w0: np.ndarray, w1: np.ndarray,
                  w2: np.ndarray) -> np.ndarray:
-    """The passes of :func:`_blur` from ``src`` (overwritten), ``dst`` scratch of its shape:
-    returns the one of the two that holds the result.
+    """Separable Gaussian blur of ``src`` (K, nx, ny), C-contiguous (overwritten), ``dst``
+    scratch of its shape: returns the one of the two that holds the result. Axis 0 periodic
+    (``wrap``), axes 1 and 2 mirrored at the walls (``reflect``), one axis after the other,
+    each with its symmetric weights ``w`` (2 r + 1,) (empty: the axis is skipped).
+
+    ``scipy.ndimage.gaussian_filter``'s arithmetic (its correlate1d of a symmetric kernel:
+    ``out = x[0] w[r] + sum_{j = -r .. -1} (x[j] + x[-j]) w[r + j]``, in that order), so the
+    results are the same bit for bit.
 
     Each pass runs over long contiguous stretches of the flat arrays: every cell gets
     ``x[0] w[r]``, then ``(x[j] + x[-j]) w[r + j]`` added for ``j = -r .. -1`` in that order,
@@ -304,19 +283,6 @@ def _blur_passes(src: np.ndarray, dst: np.ndarray, w0: np.ndarray, w1: np.ndarra
 
 
 @njit
-def _shift_pose(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, dy: float,
-                dtheta: float, cell: float, bin_: float) -> np.ndarray:
-    """Steps 1-2 of the motion update (:meth:`MarkovLocalizer._shift`) into a new array
-    (:func:`_shift_into`)."""
-    n_k, nx, ny = p.shape
-    pad = max(nx, ny) + 2
-    out = np.empty_like(p)
-    _shift_into(p, cos_k, sin_k, dx, dy, dtheta, cell, bin_,
-                np.zeros((n_k, nx + 2 * pad, ny + 2 * pad)), np.empty_like(p), out)
-    return out
-
-
-@njit
 def _shift_into(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, dy: float,
                 dtheta: float, cell: float, bin_: float, padded: np.ndarray, q: np.ndarray,
                 out: np.ndarray) -> None:
@@ -384,115 +350,14 @@ def _shift_into(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: float, 
                 dst[f] = gt * q0[f] + ft * q1[f]
 
 
-@njit
-def _log_likelihood(cos_z: np.ndarray, sin_z: np.ndarray, seen: np.ndarray, kappa: float,
-                    cos_phi: np.ndarray, sin_phi: np.ndarray, cos_th: np.ndarray,
-                    sin_th: np.ndarray) -> np.ndarray:
-    """``kappa sum_m cos(s_m - mu_m)`` at every sub-pose (module docstring).
-
-    Parameters
-    ----------
-    cos_z, sin_z : np.ndarray, shape (M,)
-        Of the observed bearings; ``seen`` (M,) which are used.
-    cos_phi, sin_phi : np.ndarray, shape (Q, M, nx, ny)
-        Of the landmark directions from each sub-position q of each cell.
-    cos_th, sin_th : np.ndarray, shape (K, T)
-        Of each sub-heading t of each heading bin k.
-
-    Returns
-    -------
-    np.ndarray, shape (Q T, K, nx, ny)
-        Sub-pose major (q, then t).
-    """
-    n_q, n_m, nx, ny = cos_phi.shape
-    n_k, n_t = cos_th.shape
-    # C = kappa sum_m cos(s_m - phi_m), S = kappa sum_m sin(s_m - phi_m), per sub-position
-    cc = np.zeros((n_q, nx, ny))
-    ss = np.zeros((n_q, nx, ny))
-    for q in range(n_q):
-        for m in range(n_m):
-            if seen[m]:
-                for i in range(nx):
-                    for j in range(ny):
-                        cp, sp = cos_phi[q, m, i, j], sin_phi[q, m, i, j]
-                        cc[q, i, j] += cos_z[m] * cp + sin_z[m] * sp
-                        ss[q, i, j] += sin_z[m] * cp - cos_z[m] * sp
-    cc *= kappa
-    ss *= kappa
-    out = np.empty((n_q * n_t, n_k, nx, ny))
-    for q in range(n_q):
-        for t in range(n_t):
-            for k in range(n_k):
-                ct, st = cos_th[k, t], sin_th[k, t]
-                for i in range(nx):
-                    for j in range(ny):
-                        # kappa cos(A + theta) = C cos theta - S sin theta
-                        out[q * n_t + t, k, i, j] = cc[q, i, j] * ct - ss[q, i, j] * st
-    return out
-
-
-@njit
-def _row_max(a: np.ndarray) -> np.ndarray:
-    """``a.max(axis=0)`` of ``a`` (S, N) without NaN: the best sub-pose of each cell."""
-    out = a[0].copy()
-    for s in range(1, a.shape[0]):
-        for i in range(a.shape[1]):
-            out[i] = max(out[i], a[s, i])
-    return out
-
-
-@njit
-def _unclipped(a: np.ndarray, cell_max: np.ndarray, best: float, low: float
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """The cells (columns of ``a`` (S, N)) with an entry ``v = a - best > low``
-    (``cell_max`` (N,) their maxima), and those entries ``v``, cell by cell, rows in order."""
-    n_sub, n = a.shape
-    cells = np.empty(n, dtype=np.int64)
-    vals = np.empty(n * n_sub)
-    n_cells = m = 0
-    for i in range(n):
-        if max(cell_max[i] - best, low) > low:
-            cells[n_cells] = i
-            n_cells += 1
-            for s in range(n_sub):
-                v = max(a[s, i] - best, low)
-                if v > low:
-                    vals[m] = v
-                    m += 1
-    return cells[:n_cells], vals[:m]
-
-
-@njit
-def _sub_pose_sums(a: np.ndarray, cells: np.ndarray, best: float, low: float, exp_low: float,
-                   exps: np.ndarray) -> np.ndarray:
-    """Per column of ``a`` (S, N), ``sum_s exp(max(a[s] - best, low))`` added row after row
-    (as ``a.sum(axis=0)`` adds rows), with ``exp_low`` for the clipped entries and ``exps``
-    for the others, in :func:`_unclipped`'s order (``cells``: the columns that have any)."""
-    n_sub, n = a.shape
-    const = exp_low                         # a column with every entry clipped
-    for _ in range(1, n_sub):
-        const += exp_low
-    out = np.full(n, const)
-    m = 0
-    for i in cells:
-        acc = 0.0
-        for s in range(n_sub):
-            e = exp_low
-            if max(a[s, i] - best, low) > low:
-                e = exps[m]
-                m += 1
-            acc = e if s == 0 else acc + e
-        out[i] = acc
-    return out
-
-
 # ------------------------------------------------------------------ fused kernels (predict,
-# update): the operations of the kernels above and of the numpy glue that called them, in
-# the same order, without the intermediate arrays (tested against them, bit for bit)
+# update): the operations of the step kernels (those above, test/localization_kernels.py's)
+# and of the numpy glue that composes them, in the same order, without the intermediate
+# arrays (tested against that composition, bit for bit)
 
 @njit
 def _weight_exponents(s_th: float, n_th: int, s_xy: float, n_xy: int, out: np.ndarray) -> None:
-    """The exponents ``-0.5 / sigma^2 x^2`` of :func:`_gaussian_weights` for
+    """The exponents ``-0.5 / sigma^2 x^2`` of scipy.ndimage's Gaussian kernel for
     ``x = -r .. r`` (``n = 2 r + 1`` of them; none for ``n = 0``): heading then position,
     into ``out[:n_th + n_xy]``."""
     for n, s, off in ((n_th, s_th, 0), (n_xy, s_xy, n_th)):
@@ -506,7 +371,7 @@ def _weight_exponents(s_th: float, n_th: int, s_xy: float, n_xy: int, out: np.nd
 
 @njit
 def _normalised_weights(e: np.ndarray, lo: int, n: int) -> np.ndarray:
-    """``phi / phi.sum()`` of ``phi = e[lo:lo + n]`` (:func:`_gaussian_weights`)."""
+    """``phi / phi.sum()`` of ``phi = e[lo:lo + n]`` (scipy.ndimage's Gaussian kernel)."""
     w = np.empty(n)
     total = _pairwise_sum(e, lo, n)
     for i in range(n):
@@ -520,17 +385,17 @@ def _predict_kernel(p: np.ndarray, cos_k: np.ndarray, sin_k: np.ndarray, dx: flo
                     n_th: int, n_xy: int, free: np.ndarray, padded: np.ndarray,
                     buf0: np.ndarray, buf1: np.ndarray, out: np.ndarray) -> bool:
     """The motion update of :meth:`MarkovLocalizer.predict` into ``out`` (K, nx, ny): the
-    shift and roll (:func:`_shift_pose`), the blur (:func:`_blur`) with the weights
+    shift and roll (:func:`_shift_into`), the blur (:func:`_blur_passes`) with the weights
     normalised from their exps ``e`` (heading ``e[:n_th]``, position ``e[n_th:]``; 0: no
-    blur of that axis), the free cells, then ``p / sum(p)`` (``_normalised``); ``buf0``,
+    blur of that axis), the free cells, then ``p / sum(p)``; ``buf0``,
     ``buf1`` scratch of ``p``'s shape, ``padded`` (K, nx + 2 P, ny + 2 P) zero but for its
     middle, ``P`` above the largest shift (``max(nx, ny) + 2``). Returns False (``out``
     unfinished) when the sum is not positive and finite."""
-    # steps 1-2 (_shift_pose) into buf1, step 3 (_blur) from there
+    # steps 1-2 (_shift_into) into buf1, step 3 (_blur_passes) from there
     _shift_into(p, cos_k, sin_k, dx, dy, dtheta, cell, bin_, padded, buf0, buf1)
     w_xy = _normalised_weights(e, n_th, n_xy)
     src = _blur_passes(buf1, buf0, _normalised_weights(e, 0, n_th), w_xy, w_xy)
-    # p *= free; p / sum(p)
+    # p *= free; b(x') <- sum_x Pr(x' | x, u) b(x) normalised (paper III-D)
     flat_src = src.reshape(-1)
     flat_free = free.reshape(-1)
     flat = out.reshape(-1)
@@ -551,7 +416,8 @@ def _cell_maxima(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np.n
                  ss: np.ndarray, bound: np.ndarray, computed: np.ndarray,
                  cell_max: np.ndarray) -> float:
     """The best sub-pose log-likelihood of the cells that may be within ``-low`` of the best
-    one (:func:`_log_likelihood` then :func:`_row_max`, without the array of every sub-pose).
+    one (the reference's ``log_likelihood``, then each cell's maximum over its sub-poses,
+    without the array of every sub-pose).
 
     Writes ``C = kappa sum_m cos(s_m - phi_m)``, ``S`` likewise with sin, per sub-position
     (``cc``, ``ss`` (Q, nx, ny)), and ``cell_max[k, i, j]`` = the largest
@@ -641,7 +507,7 @@ def _position_maxima(i: int, j: int, best: float, low: float, cc: np.ndarray, ss
         c, s = cc[q, i, j], ss[q, i, j]
         for t in range(n_t):
             for k in range(n_k):
-                # kappa cos(A + theta) = C cos theta - S sin theta (_log_likelihood)
+                # kappa cos(A + theta) = C cos theta - S sin theta (log_likelihood)
                 v[k] = max(v[k], c * cos_tk[t, k] - s * sin_tk[t, k])
     for k in range(n_k):
         cell_max[k, i, j] = v[k]
@@ -653,10 +519,12 @@ def _position_maxima(i: int, j: int, best: float, low: float, cc: np.ndarray, ss
 def _unclipped_sub_poses(cc: np.ndarray, ss: np.ndarray, cos_th: np.ndarray,
                          sin_th: np.ndarray, computed: np.ndarray, cell_max: np.ndarray,
                          best: float, low: float, cells: np.ndarray, vals: np.ndarray) -> int:
-    """:func:`_unclipped` from :func:`_cell_maxima`'s results: the flat indices of the cells
-    (C order of (K, nx, ny)) with a sub-pose value ``v = a - best > low`` into ``cells``, and
-    every sub-pose value ``v = max(a - best, low)`` of each of those cells into ``vals``, cell
-    by cell (``n_sub = Q T`` each), sub-poses in order (q, then t).
+    """The unclipped sub-poses, from :func:`_cell_maxima`'s results: the flat indices of the
+    cells (C order of (K, nx, ny)) with a sub-pose value ``v = a - best > low`` into ``cells``,
+    and every sub-pose value ``v = max(a - best, low)`` of each of those cells into ``vals``,
+    cell by cell (``n_sub = Q T`` each), sub-poses in order (q, then t), as the reference's
+    ``rows - rows.max()`` clipped at ``low`` (``a``: :func:`_cell_maxima`'s
+    ``C cos theta - S sin theta``).
 
     The cells are listed position by position (the computed ones), heading by heading within
     a position: each cell's likelihood is its own sum, so their order changes no value.
@@ -694,15 +562,16 @@ def _posterior(n_sub: int, cells: np.ndarray, low: float, exp_low: float, vals: 
                floor_uniform: np.ndarray, floor: float, evidence_min: float, lik: np.ndarray,
                out: np.ndarray) -> None:
     """The rest of :meth:`MarkovLocalizer.update` into ``out`` (K, nx, ny): the likelihood of
-    every cell (:func:`_sub_pose_sums`: of the ``cells``, the sum of their ``n_sub`` sub-pose
-    terms, ``exps`` (the exps of ``vals``) where ``vals > low`` and ``exp_low`` where clipped;
+    every cell (of the ``cells``, the sum of their ``n_sub`` sub-pose terms in order, as the
+    reference's ``e.sum(axis=0)``: ``exps`` (the exps of ``vals``) where ``vals > low`` and
+    ``exp_low`` where clipped;
     ``lik`` (N,) scratch), ``p = lik prior``, restarted from ``lik uniform`` when its sum is
     not above ``evidence_min`` (or not finite), scaled by ``(1 - floor) / sum``, plus
     ``floor_uniform`` when ``floor > 0``."""
     const = exp_low                         # a cell with every sub-pose clipped
     for _ in range(1, n_sub):
         const += exp_low
-    # lik (the cells with an unclipped sub-pose: _sub_pose_sums), then lik prior
+    # lik of the cells with an unclipped sub-pose (the others: const), then lik prior
     for c_i in range(cells.shape[0]):
         m = c_i * n_sub
         acc = exps[m] if vals[m] > low else exp_low
@@ -713,7 +582,7 @@ def _posterior(n_sub: int, cells: np.ndarray, low: float, exp_low: float, vals: 
     n = flat.shape[0]
     for attempt in range(2):
         weights = prior.reshape(-1) if attempt == 0 else uniform.reshape(-1)
-        # b(x) <- eta Pr(s | x) b(x)
+        # b(x) <- eta Pr(s | x) b(x) (paper III-D)
         for i in range(n):
             flat[i] = const * weights[i]
         for c_i in range(cells.shape[0]):

@@ -12,8 +12,8 @@ the clock sees the instant first (:meth:`ModuleSchedule.on_timer`,
 :meth:`ModuleSchedule.on_clock`), on the readings of that instant, or of the first instant
 after it if the clock ran past it; in real time on the newest readings at every timer.
 A decision waits until a reading of each sensor the module reads has arrived for its instant
-(:class:`Readings`); :attr:`ModuleSchedule.waiting` says that the node should be woken for
-them.
+(:class:`Readings`, which gives them as :class:`InstantReadings`); :attr:`ModuleSchedule.waiting`
+says that the node should be woken for them.
 
 Draws: at an instant ``t_0 + l tau_i`` the headless runner's agent stream ``(seed, 2)``,
 replayed over the condition's decision instants (:mod:`cr_sim.core.streams`), so that the
@@ -28,10 +28,14 @@ Parameters received during an episode wait for its end; a start that announces a
 version makes the first decision wait for it, at most ``params_timeout`` wall seconds.
 
 The node calls an entry point (a reading, an episode event, parameters, its timer, the clock,
-its wall timer) and then publishes what :meth:`ModuleSchedule.drain` gives, in order:
-:class:`Propose`, :class:`Observe`, :class:`ResetTimer`, :class:`Say`. The clock, the wall
-clock and the taking of the readings waiting in the node's queues are callables the node
-passes in (a test passes its own).
+its wall timer) and then carries out the actions :meth:`ModuleSchedule.pop_actions` gives, in
+order: :class:`Propose`, :class:`PublishObservation`, :class:`ResetTimer`, :class:`Log`. The
+clock, the wall clock and the taking of the readings waiting in the node's queues are
+callables the node passes in (a test passes its own).
+
+One module over 500 lines: the actions, the state of the decisions and the readings kept for
+them are one state machine, the node's whole decision logic; :class:`Readings` has no user
+but :class:`ModuleSchedule`, and the tests drive them together (``test/test_module_schedule.py``).
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 import math
 import time
+from typing import NamedTuple
 import zlib
 
 from cr_sim.core.instants import TOL, DecisionClock
@@ -54,9 +59,10 @@ from clis_modules.core.plugin import parse_condition
 from clis_modules.core.proposal import Proposal
 from clis_modules.core.streams import AgentStream, module_draws
 
-__all__ = ['READINGS_DEPTH', 'STALL_WARNING', 'Propose', 'Observe', 'ResetTimer', 'Say',
-           'Action', 'Readings', 'EpisodeState', 'NextDecision', 'LastDecision', 'Observed',
-           'Stall', 'ModuleSchedule', 'off_grid_rng']
+__all__ = ['READINGS_DEPTH', 'STALL_WARNING', 'Propose', 'PublishObservation', 'ResetTimer',
+           'Log', 'Action', 'CameraReading', 'IrReading', 'WheelReading', 'InstantReadings',
+           'LearnedParameters', 'Readings', 'EpisodeState', 'NextDecision', 'LastDecision',
+           'ObservationCursor', 'Stall', 'ModuleSchedule', 'off_grid_rng']
 
 #: Wall seconds a due decision may wait before the module says why it waits.
 STALL_WARNING = 2.0
@@ -80,8 +86,9 @@ class Propose:
 
 
 @dataclass(frozen=True)
-class Observe:
-    """Publish the module's features ``features`` at instant ``t`` [s] (no decision there)."""
+class PublishObservation:
+    """Publish the module's features ``features`` at instant ``t`` [s], another module's
+    decision instant (no decision of its own there)."""
 
     t: float
     features: np.ndarray
@@ -93,14 +100,72 @@ class ResetTimer:
 
 
 @dataclass(frozen=True)
-class Say:
+class Log:
     """Log ``text`` at ``level`` (``'warning'`` or ``'error'``)."""
 
     level: str
     text: str
 
 
-Action = Propose | Observe | ResetTimer | Say
+Action = Propose | PublishObservation | ResetTimer | Log
+
+
+# ------------------------------------------------------------------------------ readings, values
+
+class CameraReading(NamedTuple):
+    """The camera's bearings of one instant."""
+
+    t: float                        # the instant [s]
+    dest_bearing: float             # of the destination [rad]; NaN: not seen
+    landmark_bearings: np.ndarray   # (M,) of the landmarks, in the arena's order [rad]; NaN
+
+
+class IrReading(NamedTuple):
+    """The IR rays of one instant."""
+
+    t: float                        # the instant [s]
+    d_o: float                      # the nearest obstacle: the smallest ray [m] (inf: none)
+    ir: np.ndarray                  # (n_ir,) every ray [m]
+
+
+#: The IR reading of a module that reads no IR.
+_NO_IR = IrReading(math.nan, math.nan, None)
+
+
+class WheelReading(NamedTuple):
+    """The wheel velocities of one instant."""
+
+    t: float                        # the instant [s]
+    v_left: float                   # [m/s]
+    v_right: float                  # [m/s]
+
+
+class InstantReadings(NamedTuple):
+    """What the module reads of one instant, in the order of
+    :class:`~clis_modules.core.plugin.Percept`'s fields (NaN, the landmarks unseen, None for a
+    sensor it does not read)."""
+
+    t: float                        # the instant [s]
+    dest_bearing: float             # [rad]
+    d_o: float                      # [m]
+    landmark_bearings: np.ndarray   # (M,) [rad]
+    ir: np.ndarray | None           # (n_ir,) [m]
+
+    def percept(self, wheels: np.ndarray) -> Percept:
+        """The :class:`~clis_modules.core.plugin.Percept` of these readings, with the wheel
+        reading ``wheels`` (2,) [m/s]."""
+        return Percept(self.t, self.dest_bearing, self.d_o, self.landmark_bearings, self.ir,
+                       wheels)
+
+
+class LearnedParameters(NamedTuple):
+    """Parameters from the learner (the arguments of
+    :meth:`~clis_modules.core.decider.Decider.set_parameters`)."""
+
+    w: ArrayLike                    # (n,) value weights
+    W: ArrayLike                    # (2, n) policy weights
+    sigma: float
+    version: int
 
 
 # ------------------------------------------------------------------------------ state
@@ -121,7 +186,7 @@ class NextDecision:
 
     due: bool = False               # a decision waits for readings
     since: float = -math.inf        # it uses readings from this instant on
-    marked: float = -math.inf       # the grid instant last marked due
+    marked: float = -math.inf       # the decision instant last marked due
     align: float | None = None      # restart the timer when the clock reaches this
 
 
@@ -130,15 +195,16 @@ class LastDecision:
     """The last decision and what was sent of it."""
 
     t: float = -math.inf            # stamp of its readings
-    grid: float = -math.inf         # the instant it was due from
+    instant: float = -math.inf      # the decision instant it was due from
     proposal: Proposal | None = None
     stamp: float = math.nan         # clock time it was decided at
     wall: float = -math.inf         # wall time it was last sent
 
 
 @dataclass
-class Observed:
-    """The episode whose other modules' instants are observed."""
+class ObservationCursor:
+    """Where the observations at the other modules' instants stand: the episode observed, and
+    the next tick to observe at."""
 
     t0: float | None = None         # its start (None before the first)
     end: float = math.inf           # observed up to here (inf while it runs)
@@ -167,10 +233,10 @@ class Readings:
 
     Attributes
     ----------
-    camera : deque of (t, destination bearing, landmark bearings)
-    ir : deque of (t, d_o, every ray)
+    camera : deque of CameraReading
+    ir : deque of IrReading
         Also the instants of a module reading no camera.
-    wheels : deque of (t, v_left, v_right)
+    wheels : deque of WheelReading
     integrated : float
         Stamp of the last wheel reading integrated (odometry up to it).
     last_wheels : ndarray, shape (2,)
@@ -192,72 +258,69 @@ class Readings:
     def add_camera(self, t: float, bearings: Mapping[str, float]) -> None:
         """Camera bearings [rad] of instant ``t`` by name (``destination`` and landmarks)."""
         lm = np.array([bearings.get(name, math.nan) for name in self.landmarks])
-        self.camera.append((t, bearings.get('destination', math.nan), lm))
+        self.camera.append(CameraReading(t, bearings.get('destination', math.nan), lm))
 
     def add_ir(self, t: float, ranges: np.ndarray) -> None:
         """Every IR ray [m] of instant ``t`` (``d_o``: the nearest)."""
-        self.ir.append((t, float(np.min(ranges)) if ranges.size else math.inf, ranges))
+        self.ir.append(IrReading(t, float(np.min(ranges)) if ranges.size else math.inf, ranges))
 
     def add_wheels(self, t: float, v: np.ndarray) -> None:
         """Wheel velocities ``(v_left, v_right)`` [m/s] of instant ``t``."""
         if v.size == 2:
-            self.wheels.append((t, float(v[0]), float(v[1])))
+            self.wheels.append(WheelReading(t, float(v[0]), float(v[1])))
 
     def wheels_pending(self, t: float) -> bool:
         """Whether the module reads the wheels and their reading of ``t`` has not arrived (it
         travels on its own topic and may come after the others)."""
         return self.reads_wheels and self.integrated < t - TOL \
-            and not (self.wheels and self.wheels[-1][0] >= t - TOL)
+            and not (self.wheels and self.wheels[-1].t >= t - TOL)
 
     def first_after(self, t0: float, last: float, since: float,
-                    newest: bool) -> tuple | None:
+                    newest: bool) -> InstantReadings | None:
         """An instant of the episode started at ``t0``, after ``last`` and not before
-        ``since``, with a reading of each of camera and IR the module reads: ``(t, dest
-        bearing, landmark bearings, d_o, rays)`` (NaN, None for a sensor it does not read);
+        ``since``, with a reading of each of camera and IR the module reads, and its readings;
         the first such instant, or with ``newest`` the newest."""
         if self.reads_camera:
-            primary = self.camera
-            ir = ({round(t, 6): (d_o, rays) for t, d_o, rays in self.ir}
-                  if self.reads_ir else None)
+            # the camera's instants, newest first, each with the IR reading of its instant
+            # (None: not in yet)
+            ir = {round(r.t, 6): r for r in self.ir} if self.reads_ir else None
+            instants = ((c, ir.get(round(c.t, 6)) if ir is not None else _NO_IR)
+                        for c in reversed(self.camera))
         else:
-            primary = [(t, math.nan, self.unseen, (d_o, rays)) for t, d_o, rays in self.ir]
-            ir = None
+            # the IR's instants, newest first, no landmark seen
+            instants = ((CameraReading(r.t, math.nan, self.unseen), r) for r in reversed(self.ir))
         found = None
-        for t, dest, lm, *rest in reversed(primary):
-            if t < t0 - TOL or t <= last + TOL or t < since - TOL:
+        for cam, ir_at in instants:
+            if cam.t < t0 - TOL or cam.t <= last + TOL or cam.t < since - TOL:
                 break
-            got = rest[0] if rest else (ir.get(round(t, 6)) if ir is not None
-                                        else (math.nan, None))
-            if got is not None:
-                found = (t, dest, lm, *got)
+            if ir_at is not None:
+                found = InstantReadings(cam.t, cam.dest_bearing, ir_at.d_o,
+                                        cam.landmark_bearings, ir_at.ir)
                 if newest:
                     break
         return found
 
-    def at(self, t: float) -> tuple | None:
-        """The readings of instant ``t`` the module reads: ``(dest bearing, landmark
-        bearings, d_o, rays)``, or None while one has not arrived."""
-        cam = None
+    def at(self, t: float) -> InstantReadings | None:
+        """The readings of instant ``t`` the module reads, or None while one has not
+        arrived."""
+        cam = CameraReading(t, math.nan, self.unseen)
         if self.reads_camera:
-            cam = next(((dest, lm) for tc, dest, lm in reversed(self.camera)
-                        if abs(tc - t) <= TOL), None)
+            cam = next((c for c in reversed(self.camera) if abs(c.t - t) <= TOL), None)
             if cam is None:
                 return None
-        ir = (math.nan, None)
+        ir_at = _NO_IR
         if self.reads_ir:
-            ir = next(((d_o, rays) for ti, d_o, rays in reversed(self.ir)
-                       if abs(ti - t) <= TOL), None)
-            if ir is None:
+            ir_at = next((r for r in reversed(self.ir) if abs(r.t - t) <= TOL), None)
+            if ir_at is None:
                 return None
-        dest, lm = cam if cam is not None else (math.nan, self.unseen)
-        return dest, lm, *ir
+        return InstantReadings(t, cam.dest_bearing, ir_at.d_o, cam.landmark_bearings, ir_at.ir)
 
     def integrate(self, t: float, decider: Decider, dt: float, on_ticks: bool) -> None:
         """Odometry: the wheel velocities of every step that ended after the last reading
         integrated, up to ``t``, each held since the previous reading; ``on_ticks`` (sim time):
         held a whole number of ticks ``dt``, as the headless runner integrates, when the
         stamps' difference is that to rounding."""
-        while self.wheels and self.wheels[0][0] <= t + TOL:
+        while self.wheels and self.wheels[0].t <= t + TOL:
             tw, vl, vr = self.wheels.popleft()
             if tw > self.integrated + TOL:
                 held = tw - self.integrated
@@ -342,15 +405,17 @@ class ModuleSchedule:
         self.episode = EpisodeState()
         self.next = NextDecision()
         self.last = LastDecision()
-        self.observed = Observed()
+        self.cursor = ObservationCursor()
         self.stall = Stall()
-        self.pending: tuple | None = None   # parameters received during an episode
+        #: Parameters received during an episode, applied at its end.
+        self.pending_params: LearnedParameters | None = None
         #: A due decision waits for readings of its instant: wake the node for them.
         self.waiting = False
         self._out: list[Action] = []
 
-    def drain(self) -> list[Action]:
-        """What to publish, in order, since the last call."""
+    def pop_actions(self) -> list[Action]:
+        """The actions since the last call, in order (the node carries them out); they are
+        removed from the schedule."""
         out, self._out = self._out, []
         return out
 
@@ -370,27 +435,27 @@ class ModuleSchedule:
             self.stream.begin_episode()
         self.decider.reset()
         self.off_grid = off_grid_rng(self.seed, self.name, int(values.get('episode', 0)))
-        self._apply_pending()
-        ep, due = self.episode, self.next
+        self._apply_pending_params()
+        ep, decision = self.episode, self.next
         ep.t0 = t0
         ep.version = int(values.get('params_version', 0))
         ep.deadline = self.wall() + self.params_timeout
         self.readings.integrated = t0
-        self.observed = Observed(t0=t0)
+        self.cursor = ObservationCursor(t0=t0)
         self._out.append(ResetTimer())
-        due.marked = -math.inf
+        decision.marked = -math.inf
         if not self.sim_time:
-            due.due, due.since = True, -math.inf
+            decision.due, decision.since = True, -math.inf
         else:
             now = self.now()
             if now < t0 - TOL:                  # the clock has not reached the start yet
-                due.align = t0
+                decision.align = t0
                 self._mark_due(t0)
-            elif self._grid(now) >= now - TOL:  # the clock stands at a decision instant
-                self._mark_due(self._grid(now))
+            elif self._last_instant(now) >= now - TOL:  # the clock stands at an instant
+                self._mark_due(self._last_instant(now))
             else:                               # (re)started between two: the next one
-                due.marked = self._grid(now)
-                due.align = due.marked + self.period
+                decision.marked = self._last_instant(now)
+                decision.align = decision.marked + self.period
         self.try_decide()
 
     def end(self, t: float) -> None:
@@ -400,12 +465,12 @@ class ModuleSchedule:
         if ep.t0 is not None and (k_end := self.clock.tick(t, ep.t0)) is not None:
             self.stream.end_episode(k_end)
         if ep.t0 is not None:
-            self.observed.end = t - 2 * TOL     # observed up to the end, not at it
+            self.cursor.end = t - 2 * TOL       # observed up to the end, not at it
         ep.t0, self.next.due, ep.ended = None, False, t
         # the end event may overtake the readings of the episode's last instants (their own
         # topics): what is in goes out now, the rest as it comes (clock, wall timer)
         self.take()
-        self._observe_pending(t)
+        self._observe_up_to(t)
 
     def set_parameters(self, name: str, w: ArrayLike, W: ArrayLike,  # noqa: N803
                        sigma: float, version: int) -> None:
@@ -413,12 +478,12 @@ class ModuleSchedule:
         of one, or when they are the version the episode was announced with (a module
         restarted mid-episode gets them late); else at the next start."""
         if name != self.name:
-            self._out.append(Say('error', f'ignored parameters of {name!r} on my topic'))
+            self._out.append(Log('error', f'ignored parameters of {name!r} on my topic'))
             return
-        self.pending = (w, W, sigma, version)
+        self.pending_params = LearnedParameters(w, W, sigma, version)
         ep = self.episode
         if ep.t0 is None or self.last.t < ep.t0 or version <= ep.version:
-            self._apply_pending()
+            self._apply_pending_params()
             self.try_decide()
 
     def on_timer(self) -> None:
@@ -426,33 +491,33 @@ class ModuleSchedule:
         if self.episode.t0 is None:
             return
         if self.sim_time:
-            self._mark_due(self._grid(self.now()))
+            self._mark_due(self._last_instant(self.now()))
         else:                                   # real time: decide on the newest readings
             self.next.due, self.next.since = True, -math.inf
             self.try_decide()
 
     def on_clock(self, t: float) -> None:
         """The clock moved to ``t`` (sim time)."""
-        due = self.next
-        if due.align is not None and t >= due.align - TOL:
-            due.align = None
+        decision = self.next
+        if decision.align is not None and t >= decision.align - TOL:
+            decision.align = None
             self._out.append(ResetTimer())      # the timer's phase: t_0 + l tau_i
         # decisions follow the clock itself too, not the sim-time timer alone (one that did
         # not fire would leave its instants to the arbiter's lockstep timeout)
         if self.episode.t0 is not None and t >= self.episode.t0 - TOL:
-            self._mark_due(self._grid(t))
-        if not due.due:
+            self._mark_due(self._last_instant(t))
+        if not decision.due:
             # between decisions the readings are taken when the clock wakes the node anyway,
             # so that a decision takes only its instant's on its path
             self.take()
-            self._observe_pending(t)
+            self._observe_up_to(t)
 
     def on_wall(self) -> None:
         """The node's wall timer: readings, resending, the parameters' timeout, stalls."""
         now = self.wall()
         self.take()                             # the queues stay short between decisions
-        if not self.next.due and self.observed.t0 is not None:
-            self._observe_pending(self.now())
+        if not self.next.due and self.cursor.t0 is not None:
+            self._observe_up_to(self.now())
         if self.next.due:
             # a reading taken here is one whose callback will not run: decide on it here
             self.try_decide()
@@ -467,7 +532,7 @@ class ModuleSchedule:
         ep = self.episode
         if self.next.due and self.decider.version < ep.version \
                 and self.wall() >= ep.deadline:
-            self._out.append(Say(
+            self._out.append(Log(
                 'warning', f'parameters version {ep.version} did not arrive within '
                 f'{self.params_timeout} s: deciding with version {self.decider.version}'))
             ep.version = self.decider.version
@@ -476,22 +541,22 @@ class ModuleSchedule:
     def try_decide(self) -> None:
         """Decide if a decision is due and the readings of its instant are in (a reading
         arrived, or anything else may have made it possible)."""
-        ep, due, rd = self.episode, self.next, self.readings
-        if not due.due or ep.t0 is None or self.decider.version < ep.version:
+        ep, decision, rd = self.episode, self.next, self.readings
+        if not decision.due or ep.t0 is None or self.decider.version < ep.version:
             self.waiting = False
             return
         self.take()
-        found = rd.first_after(ep.t0, self.last.t, due.since, newest=not self.sim_time)
+        found = rd.first_after(ep.t0, self.last.t, decision.since, newest=not self.sim_time)
         # until the readings of the instant are in, the node is woken for them
         self.waiting = True
         if found is None:
             return
-        t, dest, lm, d_o, rays = found
+        t = found.t
         # under sim time odometry up to t needs the wheel reading of t too
         if self.sim_time and rd.wheels_pending(t):
             return
         self.waiting = False
-        self._observe_pending(t - 2 * TOL)      # the other modules' instants before it
+        self._observe_up_to(t - 2 * TOL)      # the other modules' instants before it
         rd.integrate(t, self.decider, self.clock.dt, self.sim_time)
         mark(f'{self.name}_decide', t)
         # the draws of the instant: the agent stream's (the runner's), or off the grid a
@@ -502,75 +567,74 @@ class ModuleSchedule:
             self.decider.rng = self.draws
         else:
             self.decider.rng = self.off_grid
-        p = self.decider.decide(Percept(t, dest, d_o, lm, rays, rd.last_wheels))
-        due.due, self.last.t, self.last.grid = False, t, due.since
+        p = self.decider.decide(found.percept(rd.last_wheels))
+        decision.due, self.last.t, self.last.instant = False, t, decision.since
         stamp = self.now()
         self._out.append(Propose(p, stamp))
         self.last.proposal, self.last.stamp, self.last.wall = p, stamp, self.wall()
 
     # ------------------------------------------------------------------ internals
 
-    def _grid(self, t: float) -> float:
-        """The last decision instant ``t_0 + l tau_i`` at or before ``t``."""
+    def _last_instant(self, t: float) -> float:
+        """The module's last decision instant ``t_0 + l tau_i`` at or before ``t``."""
         return self.clock.last_instant(self.index, t, self.episode.t0)
 
-    def _mark_due(self, g: float) -> None:
-        """Under sim time: decide on the readings of grid instant ``g`` (the simulator
-        publishes an instant's readings before the clock reaches it), or on the first after
-        it if the clock ran past it; once per grid instant, whichever of the timer and the
-        clock sees it first."""
-        due = self.next
-        if g > due.marked + TOL:
-            due.marked = g
-            due.due, due.since = True, g
+    def _mark_due(self, instant: float) -> None:
+        """Under sim time: decide on the readings of decision instant ``instant`` (the
+        simulator publishes an instant's readings before the clock reaches it), or on the
+        first after it if the clock ran past it; once per instant, whichever of the timer and
+        the clock sees it first."""
+        decision = self.next
+        if instant > decision.marked + TOL:
+            decision.marked = instant
+            decision.due, decision.since = True, instant
             self.try_decide()
 
-    def _apply_pending(self) -> None:
-        if self.pending is None:
+    def _apply_pending_params(self) -> None:
+        if self.pending_params is None:
             return
         try:
-            self.decider.set_parameters(*self.pending)
+            self.decider.set_parameters(*self.pending_params)
         except ValueError as exc:
-            self._out.append(Say('error', f'ignored parameters: {exc}'))
-        self.pending = None
+            self._out.append(Log('error', f'ignored parameters: {exc}'))
+        self.pending_params = None
 
-    def _observe_pending(self, limit: float) -> None:
+    def _observe_up_to(self, limit: float) -> None:
         """At each instant up to ``limit`` at which another module decides and this one does
         not, its features there (:meth:`Decider.observe`: no draw, its state untouched), in
         order, once that instant's readings are in (the learner scores the acting module's
         behaviour density of (6) at the state this module had)."""
-        obs, rd = self.observed, self.readings
+        obs, rd = self.cursor, self.readings
         if not self.observes or obs.t0 is None:
             return
         dt = self.clock.dt
         limit = min(limit, obs.end)             # an ended episode: up to its end
         while (tj := obs.t0 + obs.k * dt) <= limit + TOL:
-            due = self.clock.due_at(obs.k)
-            if self.index in due and tj > self.last.t + TOL:
+            due_modules = self.clock.due_at(obs.k)
+            if self.index in due_modules and tj > self.last.t + TOL:
                 return                          # its own decision first
             passed = tj < self.last.t - TOL or tj < rd.integrated - TOL
-            if not due or self.index in due or passed:
+            if not due_modules or self.index in due_modules or passed:
                 obs.k += 1
                 continue
             found = rd.at(tj)
             if found is None or rd.wheels_pending(tj):
                 return                          # its readings are on their way
             rd.integrate(tj, self.decider, dt, self.sim_time)
-            dest, lm, d_o, rays = found
-            b = self.decider.observe(Percept(tj, dest, d_o, lm, rays, rd.last_wheels))
-            self._out.append(Observe(tj, b))
+            b = self.decider.observe(found.percept(rd.last_wheels))
+            self._out.append(PublishObservation(tj, b))
             obs.k += 1
 
     def _check_stall(self, now: float) -> None:
-        """Say once why a decision has been due for long (a stalled lockstep explains
+        """Log once why a decision has been due for long (a stalled lockstep explains
         itself)."""
-        ep, due, rd, stall = self.episode, self.next, self.readings, self.stall
-        if ep.t0 is not None and not due.due and self.sim_time \
-                and self._grid(self.now()) > self.last.grid + TOL:
-            why = f'no decision marked for {self._grid(self.now()):.3f}'
-        elif ep.t0 is None and rd.camera and rd.camera[-1][0] > ep.ended + TOL:
-            why = f'no start event seen, readings at {rd.camera[-1][0]:.3f}'
-        elif due.due and ep.t0 is not None:
+        ep, decision, rd, stall = self.episode, self.next, self.readings, self.stall
+        if ep.t0 is not None and not decision.due and self.sim_time \
+                and self._last_instant(self.now()) > self.last.instant + TOL:
+            why = f'no decision marked for {self._last_instant(self.now()):.3f}'
+        elif ep.t0 is None and rd.camera and rd.camera[-1].t > ep.ended + TOL:
+            why = f'no start event seen, readings at {rd.camera[-1].t:.3f}'
+        elif decision.due and ep.t0 is not None:
             why = 'due'
         else:
             stall.since = None
@@ -579,10 +643,10 @@ class ModuleSchedule:
             stall.since, stall.said = now, False
         elif not stall.said and now - stall.since >= STALL_WARNING:
             stall.said = True
-            cams = [round(t, 3) for t, *_ in rd.camera][-3:]
-            irs = [round(t, 3) for t, *_ in rd.ir][-3:]
-            self._out.append(Say(
+            cams = [round(c.t, 3) for c in rd.camera][-3:]
+            irs = [round(r.t, 3) for r in rd.ir][-3:]
+            self._out.append(Log(
                 'warning', f'{why}: waiting for {now - stall.since:.1f} s: t0 {ep.t0}, '
-                f'clock {self.now():.3f}, due from {due.since:.3f}, last decision on '
+                f'clock {self.now():.3f}, due from {decision.since:.3f}, last decision on '
                 f'{self.last.t:.3f}, parameters {self.decider.version} (expected '
                 f'{ep.version}), last camera {cams}, last ir {irs}'))
