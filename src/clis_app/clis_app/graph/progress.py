@@ -7,7 +7,9 @@ learner's progress rows (``learner/progress``) and tells which nodes are up;
 
 from __future__ import annotations
 
+import csv
 import math
+from pathlib import Path
 import sys
 import time
 
@@ -63,17 +65,57 @@ class Monitor:
 
 
 class ProgressView:
-    """The one-line progress of a run, from the learner's progress rows."""
+    """The one-line progress of a run, from the learner's progress rows.
+
+    ``table``: the run's ``episodes.csv``, where the learner appends each learned episode's row
+    before it publishes the progress. The run is done when either says ``target`` episodes
+    were learned since the view was made: a progress row published before ``clis run``'s
+    subscription was matched with the learner's publisher is not delivered to it (transient
+    local keeps the newest only), and a short run's episodes can all be learned in that
+    moment.
+    """
 
     def __init__(self, target: int, block: int, quiet: bool, tty: bool,
-                 time_limit: float = 0.0) -> None:
+                 time_limit: float = 0.0, table: Path | None = None) -> None:
         self.target, self.block, self.quiet, self.tty = target, block, quiet, tty
         self.time_limit = time_limit * 60.0
         self.t_start = time.monotonic()
         self.shown = 0
         self.learned = 0
+        self.table = table
+        self._table_size = -1
+        self._table_rows = self.table_rows0 = self._count_rows()
         #: what the divergence guard reported so far
         self.diverged: list[Divergence] = []
+
+    def _count_rows(self) -> int:
+        """Rows of :attr:`table` (0 without one), counted again only when its size changed."""
+        if self.table is None:
+            return 0
+        try:
+            size = self.table.stat().st_size
+        except OSError:
+            return 0
+        if size != self._table_size:
+            self._table_size = size
+            with open(self.table, newline='') as fh:
+                self._table_rows = max(0, sum(1 for _ in csv.reader(fh)) - 1)
+        return self._table_rows
+
+    @property
+    def table_learned(self) -> int:
+        """Episodes the learner appended to :attr:`table` since the view was made and
+        checkpointed (``checkpoint.npz`` beside it written after the table's last row: the
+        learner writes the row, then the checkpoint, then publishes the progress)."""
+        n = self._count_rows() - self.table_rows0
+        if n <= 0:
+            return 0
+        try:
+            done = (self.table.with_name('checkpoint.npz').stat().st_mtime_ns
+                    >= self.table.stat().st_mtime_ns)
+        except OSError:
+            done = False
+        return n if done else n - 1
 
     @property
     def out_of_time(self) -> bool:
@@ -83,7 +125,7 @@ class ProgressView:
         """Show the newest row; True once ``target`` episodes are learned (or the time limit
         is reached)."""
         if len(rows) <= self.shown:
-            return self.out_of_time
+            return self.out_of_time or self.table_learned >= self.target
         new, self.shown = rows[self.shown:], len(rows)
         done = [r for r in rows if r.get('learned') == '1']
         self.learned = len(done)
@@ -97,7 +139,8 @@ class ProgressView:
             line = self.line(rows[-1], done, time.monotonic() - self.t_start)
             print(('\r\033[K' + line[:200]) if self.tty else line, end='' if self.tty else '\n',
                   file=sys.stderr, flush=True)
-        return self.learned >= self.target or self.out_of_time
+        return (max(self.learned, self.table_learned) >= self.target
+                or self.out_of_time)
 
     def line(self, last: dict[str, str], done: list[dict[str, str]], wall: float) -> str:
         recent = done[-self.block:]

@@ -73,7 +73,8 @@ def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
         executor = make_executor(next(n.graph.executor for n in nodes if hasattr(n, 'graph')))
         monitor = Monitor()
         view = ProgressView(args.episodes, args.block, args.quiet,
-                            sys.stderr.isatty() and not args.quiet, args.time_limit)
+                            sys.stderr.isatty() and not args.quiet, args.time_limit,
+                            out / 'episodes.csv')
 
         def on_wall() -> None:
             if interrupted():

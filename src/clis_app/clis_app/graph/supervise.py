@@ -149,10 +149,12 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
                 return EXIT_STARTUP
             monitor.spin(0.1)
             missing = monitor.up([c.name for c in graph])
+        # (the table's rows counted before the robot interface starts its first episode)
+        view = ProgressView(args.episodes, args.block, args.quiet, tty, args.time_limit,
+                            out / 'episodes.csv')
         for child in plan.children:                    # the robot interface (and its device)
             if child not in graph:
                 sup.start(child)
-        view = ProgressView(args.episodes, args.block, args.quiet, tty, args.time_limit)
         while not interrupted():
             monitor.spin(0.1)
             if (code := sup.check()) is not None:
