@@ -350,10 +350,15 @@ def test_offline_learning_from_a_recorded_run_equals_the_live_learner(tmp_path):
     assert meta_off['extra']['version'] == meta_live['extra']['version'] == 3
     # ... exactly as the learner node loads `learner_node.resume`
     from clis_learner.core.checkpoint import load_checkpoint
-    from clis_learner.core.config import load_clis_params, params_hash
+    from clis_learner.core.config import (
+        DEFAULT_PRESET,
+        load_clis_params,
+        params_hash,
+        preset_overrides,
+    )
     from clis_modules.core.modules import arena_map, make_modules
     from cr_sim.core.arena import load_arena
-    clis_params = load_clis_params()
+    clis_params = load_clis_params(overrides=preset_overrides(DEFAULT_PRESET))  # clis run's
     mods = make_modules(clis_params, 'view', *arena_map(load_arena(None)))
     meta = load_checkpoint(ckpt, mods, params_hash(clis_params))
     assert meta['extra']['version'] == 3
