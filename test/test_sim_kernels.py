@@ -459,3 +459,16 @@ def test_sensing_is_the_reference_bit_for_bit(world):
         res = sim.step(rng.uniform(-1.0, 1.0, 2))
         if res.done:
             sim.reset('random')       # observes: the next reference draw is its noise
+
+
+def test_the_numpy_layout_reader_is_pinned_to_the_versions_it_was_checked_on():
+    """numpy's own loops are called from the kernels only on a numpy whose ufunc layout was
+    checked (requirements-py.txt pins one); on any other the raw offsets are not read, the
+    loops are zeros (the C library's functions) and a warning says so."""
+    from cr_sim.core import ufunc_loops
+    assert ufunc_loops.supported(), ufunc_loops.numpy_version()
+    assert ufunc_loops.LOOPS[0] != 0 and ufunc_loops.LOOPS[2] != 0
+    assert not ufunc_loops.supported('2.5.0') and not ufunc_loops.supported('1.26.4')
+    with pytest.warns(RuntimeWarning, match='numpy 9.9.0 is not one of'):
+        loops = ufunc_loops._checked_loops('9.9.0')
+    assert not loops.any()

@@ -24,6 +24,7 @@ what numpy code summed.
 from __future__ import annotations
 
 import ctypes
+import importlib.metadata
 import warnings
 
 import numpy as np
@@ -43,7 +44,29 @@ except ImportError:  # pragma: no cover
         """numba is not installed: run ``fn`` as plain Python (same results, slower)."""
         return fn
 
-__all__ = ['LOOPS', 'exp_into', 'arctan2_into', 'block_sum', 'pairwise_sum']
+__all__ = ['LOOPS', 'CHECKED_ON', 'numpy_version', 'supported', 'exp_into', 'arctan2_into',
+           'block_sum', 'pairwise_sum']
+
+#: The numpy versions (major.minor) whose ``PyUFuncObject`` layout :func:`_loop_of` was checked
+#: on (requirements-py.txt pins one). On any other the raw offsets are not read at all (an
+#: address from another layout could point anywhere): :data:`LOOPS` holds zeros, the kernels
+#: use the C library's functions, and a warning says so, as :mod:`cr_sim.ros_support.
+#: rclpy_private` does for rclpy.
+CHECKED_ON = ('2.4',)
+
+
+def numpy_version() -> str:
+    """The installed numpy's version (its package metadata; ``np.__version__`` otherwise)."""
+    try:
+        return importlib.metadata.version('numpy')
+    except importlib.metadata.PackageNotFoundError:   # pragma: no cover
+        return np.__version__
+
+
+def supported(version: str | None = None) -> bool:
+    """Whether numpy ``version`` (default: the installed one) is one of :data:`CHECKED_ON`."""
+    v = (version or numpy_version()).split('.')
+    return '.'.join(v[:2]) in CHECKED_ON
 
 
 def _loop_of(ufunc: np.ufunc, types: str) -> tuple[int, int]:
@@ -205,10 +228,18 @@ def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
         sp += 1
 
 
-def _checked_loops() -> np.ndarray:
+def _checked_loops(version: str | None = None) -> np.ndarray:
     """The addresses ``(exp, its data, arctan2, its data)``, checked against numpy on inputs
-    that cover the ranges the project's kernels feed them; zeros if anything differs."""
+    that cover the ranges the project's kernels feed them; zeros if anything differs, and
+    without reading them when numpy ``version`` (default: the installed one) is not one the
+    layout was checked on (:data:`CHECKED_ON`)."""
     zeros = np.zeros(4, dtype=np.intp)
+    if not supported(version):
+        warnings.warn(f'cr_sim.core.ufunc_loops: numpy {version or numpy_version()} is not one '
+                      f'of {", ".join(CHECKED_ON)} whose ufunc layout was checked; using the C '
+                      "library's exp/arctan2 in the kernels (results differ from numpy's in the "
+                      'last bits)', RuntimeWarning, stacklevel=2)
+        return zeros
     try:
         loops = np.array((*_loop_of(np.exp, 'd->d'), *_loop_of(np.arctan2, 'dd->d')),
                          dtype=np.intp)
