@@ -17,7 +17,8 @@ PYTHON ?= $(shell for p in python3.11 python3.12 python3.10 python3.13 python3; 
 SYSTEM_ROS := $(shell [ "$$ROS_DISTRO" = jazzy ] && python3 -c 'import rclpy' >/dev/null 2>&1 && echo 1)
 ENV := source ./env.sh
 SOURCES := $(shell find src -type f \( -name '*.py' -o -name package.xml -o -name setup.cfg \
-  -o -path '*/scripts/*' -o -path '*/resource/*' \) -not -path '*/__pycache__/*') $(wildcard config/*)
+  -o -path '*/scripts/*' -o -path '*/resource/*' \) -not -path '*/__pycache__/*') $(wildcard config/*) \
+  $(wildcard config/robots/*)
 RUN_ARGS ?=
 # make run records its run as a bag (MCAP) here; RECORD= turns it off.
 RECORD ?= bags/run-$(shell date +%Y%m%d-%H%M%S)

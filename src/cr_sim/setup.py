@@ -9,6 +9,7 @@ HERE = Path(__file__).resolve().parent
 # The project's config/ (parameter files, arena, DDS profile) is installed with cr_sim,
 # the package every other one depends on; config_dir() finds it there.
 CONFIG = sorted(str(p) for p in (HERE.parent.parent / 'config').glob('*.*'))
+ROBOTS = sorted(str(p) for p in (HERE.parent.parent / 'config' / 'robots').glob('*.yaml'))
 
 setup(
     name=package_name,
@@ -18,6 +19,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', [os.path.relpath(c, HERE) for c in CONFIG]),
+        ('share/' + package_name + '/config/robots',
+         [os.path.relpath(c, HERE) for c in ROBOTS]),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
