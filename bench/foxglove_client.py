@@ -79,7 +79,7 @@ def layout_topics() -> frozenset[str]:
     """The topics config/foxglove_layout.json shows (3D panels' topics, plotted paths)."""
     from pathlib import Path
 
-    from clis_app.live.foxglove_node import shown_topics
+    from clis_app.live.layout import shown_topics
     path = Path(__file__).resolve().parent.parent / 'config' / 'foxglove_layout.json'
     return shown_topics(json.loads(path.read_text()))
 

@@ -31,8 +31,8 @@ import sys
 import time
 
 from clis_app.bags.mcap import BagReader, bag_topics, message_definition
-from clis_app.live.foxglove_node import (
-    CONFIG_FILE,
+from clis_app.live.foxglove_node import CONFIG_FILE
+from clis_app.live.layout import (
     LAYOUT_CONDITION,
     LAYOUT_FILE,
     PATH_TOPIC,
@@ -292,7 +292,7 @@ def test_the_server_listens_on_loopback_only(live):
 
 def test_the_shipped_layout_is_the_models_and_shows_served_topics(repo, live):
     text = (repo / 'config' / 'foxglove_layout.json').read_text()
-    assert text == layout_json(), 'regenerate: python -c "from clis_app.live.foxglove_node ' \
+    assert text == layout_json(), 'regenerate: python -c "from clis_app.live.layout ' \
                                   'import layout_json; print(layout_json(), end=\'\')"'
     shown = shown_topics(json.loads(text))
     assert shown and shown <= EXPECTED, shown - EXPECTED

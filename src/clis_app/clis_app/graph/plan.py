@@ -176,3 +176,36 @@ def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: s
     plan.children.append(Child('bridge', 'cr_bridge', 'bridge', {
         'node.device': device, 'node.seed': seed, 'node.arena_file': arena,
         'node.start': 'wander', 'node.wait_for_learner': True}, restart='never'))
+
+
+def plan_live_view(plan: Any, args: Any) -> str | None:
+    """Add the live view to the children of a ``clis run`` (``--foxglove PORT``): one more
+    process, up before the robot interface and stopped last (as the recorder). An error text
+    for a bad port or ``--single-process``; else None."""
+    from clis_app.live.layout import LAYOUT_FILE
+    if not 1 <= args.foxglove <= 65535:
+        return f'--foxglove {args.foxglove}: a TCP port in [1, 65535]'
+    if getattr(args, 'single_process', False):
+        return '--foxglove runs the live view as a process of its own: not with --single-process'
+    graph = {k: v for k, v in plan.children[0].params.items() if k.startswith('graph.')}
+    plan.children.insert(0, Child('foxglove', 'clis_app', 'foxglove', {
+        **graph, 'foxglove.port': int(args.foxglove), 'foxglove.block': int(args.block),
+        'foxglove.layout': str(Path(args.out).resolve() / LAYOUT_FILE)}, stop_last=True))
+    # the simulator's first episode also waits for the view's subscription of the episode
+    # events (made once it has discovered the simulator): a short run on a fast host could
+    # otherwise end before the view had discovered it, and show nothing of the robot (seen in
+    # a fresh-clone make test). With --foxglove-wait, also for its odom subscription, made
+    # once a client watches every shown topic (foxglove.wait_for_client: _client_ready)
+    recording = any(c.name == 'recorder' for c in plan.children)
+    wait = bool(getattr(args, 'foxglove_wait', False))
+    plan.children[0].params['foxglove.wait_for_client'] = wait
+    from cr_sim.interface import parse_counts
+    for child in plan.children:
+        subs = child.params.get('node.start_subscribers') if child.name == 'sim' else None
+        if subs:
+            counts = parse_counts(tuple(subs), 'sim.node.start_subscribers')
+            counts['episode'] = counts.get('episode', 0) + 1
+            if wait:
+                counts['odom'] = counts.get('odom', 0) + 1 + recording
+            child.params['node.start_subscribers'] = [f'{t}:{n}' for t, n in counts.items()]
+    return None

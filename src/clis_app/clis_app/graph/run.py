@@ -399,7 +399,7 @@ def main(args: argparse.Namespace) -> int:
               '[PORT]', file=sys.stderr)
         return EXIT_CONFIG
     if args.foxglove is not None:                    # the live view (docs/foxglove.md)
-        from clis_app.live.foxglove_node import plan_live_view
+        from clis_app.graph.plan import plan_live_view
         if error := plan_live_view(plan, args):
             print(f'clis run: {error}', file=sys.stderr)
             return EXIT_CONFIG

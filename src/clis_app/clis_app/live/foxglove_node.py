@@ -75,17 +75,20 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from clis_app.bags.mcap import BagError, message_definition
 from clis_app.bags.recorder_node import EXCLUDED, graph_topics, latched_topics, message_class
+from clis_app.live.layout import (
+    LAYOUT_CONDITION,
+    PATH_TOPIC,
+    SUCCESS_TOPIC,
+    layout_json,
+    shown_topics,
+)
 from cr_sim import conversions as rconv
 
-__all__ = ['FoxgloveParams', 'FoxgloveNode', 'CONFIG_FILE', 'DEFAULT_PORT', 'HOST', 'PATH_TOPIC',
-           'SUCCESS_TOPIC', 'LAYOUT_CONDITION', 'LAYOUT_FILE', 'layout_modules', 'layout',
-           'layout_json', 'plan_live_view', 'main']
+__all__ = ['FoxgloveParams', 'FoxgloveNode', 'CONFIG_FILE', 'DEFAULT_PORT', 'HOST', 'main']
 
 #: The only interface the WebSocket listens on.
 HOST = '127.0.0.1'
 DEFAULT_PORT = 8765
-PATH_TOPIC = '/foxglove/path'
-SUCCESS_TOPIC = '/foxglove/success'
 #: The channels the live view computes (a late subscriber gets their last message again).
 DERIVED = frozenset({PATH_TOPIC, SUCCESS_TOPIC})
 #: The node's parameter file (section ``foxglove``).
@@ -454,169 +457,6 @@ class FoxgloveNode(GraphNode):
         self.server.stop()
         counts = ', '.join(f'{t} {n}' for t, n in sorted(self.counts.items()))
         print(f'foxglove: {sum(self.counts.values())} messages served: {counts}', flush=True)
-
-
-#: The condition of the shipped layout, ``config/foxglove_layout.json``: the graph's default
-#: (``graph.condition`` of ``config/graph.yaml``).
-LAYOUT_CONDITION = 'async'
-#: The layout of the live view's condition, written into a ``clis run``'s folder.
-LAYOUT_FILE = 'foxglove_layout.json'
-#: Message type of a belief grid a module publishes (a plug-in's ``topics``).
-GRID_TYPE = 'nav_msgs/msg/OccupancyGrid'
-
-
-def layout_modules(condition: str, clis: Any = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """The module instances of ``condition`` in the order of ``arbiter/selection``'s
-    ``position`` (Pr(i | x), the condition's order), and the belief grids they publish
-    (``/NAME/TOPIC`` of each plug-in's ``topics`` of type :data:`GRID_TYPE`).
-
-    Parameters
-    ----------
-    condition : str
-    clis : ClisParams, optional
-        Where the instances' plug-ins are found; None: ``config/clis.yaml``.
-    """
-    from clis_modules.core.plugin import parse_condition
-    if clis is None:
-        from clis_learner.core.config import load_clis_params
-        clis = load_clis_params()
-    modules = parse_condition(condition).modules
-    beliefs = tuple(f'/{name}/{topic}' for name in modules
-                    for topic, typ in clis.module(name)[0].topics.items() if typ == GRID_TYPE)
-    return modules, beliefs
-
-
-def layout(condition: str = LAYOUT_CONDITION, clis: Any = None) -> Any:
-    """The Foxglove layout of ``condition``'s graph (docs/foxglove.md; ``clis`` as for
-    :func:`layout_modules`), built with the ``foxglove.layouts`` model of the SDK: left, the
-    arena with the robot and its path, and the belief grids its modules publish (the place
-    module's; 3D panels, top view of the ``odom`` frame); right, which module acts, Pr(i | x)
-    of each of its modules, the reward and the success rate over sim time.
-    ``config/foxglove_layout.json`` is the layout of :data:`LAYOUT_CONDITION`."""
-    import foxglove.layouts as fl
-    modules, beliefs = layout_modules(condition, clis)
-
-    def top_view(topics: dict[str, Any]) -> Any:
-        return fl.ThreeDeeConfig(
-            follow_tf='odom', fixed_frame='odom', follow_mode='follow-none',
-            camera_state=fl.ThreeDeeCameraState(perspective=False, distance=6.0, phi=0.0,
-                                                target=(0.0, 0.0, 0.0),
-                                                target_offset=(0.0, 0.0, 0.0), theta_offset=0.0),
-            topics=topics)
-
-    arena = fl.BaseRendererRosMarkerTopicSettings(visible=True)
-    scene = fl.ThreeDeePanel(title='Arena, robot and its path', config=top_view({
-        '/arena': arena,
-        '/markers': fl.BaseRendererRosMarkerTopicSettings(visible=True),
-        '/odom': fl.BaseRendererPoseTopicSettings(visible=True, type='arrow',
-                                                  arrow_scale=(0.15, 0.03, 0.03),
-                                                  color='#1e5fffff'),
-        PATH_TOPIC: fl.BaseRendererPosesTopicSettings(visible=True, type='line',
-                                                       line_width=0.015,
-                                                       gradient=('#1e5fff40', '#1e5fffff')),
-    }))
-    owners = [b.split('/')[1] for b in beliefs]
-    belief = fl.ThreeDeePanel(
-        title=(f"{owners[0].capitalize()} module's belief" if len(owners) == 1 else
-               f"Beliefs of {', '.join(owners)}") + ' (most probable cell = 100)',
-        config=top_view({
-            **{b: fl.BaseRendererRosOccupancyGridTopicSettings(
-                visible=True, color_mode='map', alpha=0.8, frame_locked=True) for b in beliefs},
-            '/arena': arena}))
-
-    def stamped(value: str, label: str) -> Any:
-        return fl.PlotSeries(value=value, label=label, enabled=True,
-                             timestamp_method='headerStamp')
-
-    acting = fl.StateTransitionsPanel(title='Acting module', config=fl.StateTransitionsConfig(
-        paths=[fl.StateTransitionsSeries(value='/arbiter/selection.header.frame_id',
-                                         label='drawn by the arbiter',
-                                         timestamp_method='headerStamp'),
-               fl.StateTransitionsSeries(value='/arbiter/action.header.frame_id',
-                                         label="in cmd_vel ('' = stop)",
-                                         timestamp_method='headerStamp')]))
-    probs = fl.PlotPanel(title='Pr(i | x) at each draw', config=fl.PlotConfig(
-        paths=[stamped(f'/arbiter/selection.position[{k}]', f'Pr({m} | x)')
-               for k, m in enumerate(modules)],
-        min_y_value=0.0, max_y_value=1.0, show_legend=True))
-    reward = fl.PlotPanel(title='Reward', config=fl.PlotConfig(
-        paths=[stamped('/reward.vector.x', 'reward of the tick'),
-               stamped('/reward.vector.y', 'episode return')], show_legend=True))
-    success = fl.PlotPanel(title='Success rate', config=fl.PlotConfig(
-        paths=[stamped(f'{SUCCESS_TOPIC}.vector.x', 'reached, share of the last block'),
-               stamped(f'{SUCCESS_TOPIC}.vector.z', 'reached (this episode)')],
-        min_y_value=0.0, max_y_value=1.0, show_legend=True))
-
-    def split(direction: str, *items: tuple[float, Any]) -> Any:
-        return fl.SplitContainer(direction=direction, items=[
-            fl.SplitItem(proportion=p, content=c) for p, c in items])
-
-    left = split('column', (0.6, scene), (0.4, belief)) if beliefs else scene
-    return fl.Layout(content=split(
-        'row',
-        (0.55, left),
-        (0.45, split('column', (0.2, acting), (0.3, probs), (0.25, reward), (0.25, success)))))
-
-
-def shown_topics(layout: object) -> frozenset[str]:
-    """The topics a Foxglove layout (the parsed JSON of ``config/foxglove_layout.json``)
-    shows: its 3D panels' topics and the topics of its plotted message paths."""
-    shown: set[str] = set()
-
-    def walk(node: object) -> None:
-        if isinstance(node, dict):
-            for k, v in node.items():
-                if k == 'topics' and isinstance(v, dict):
-                    shown.update(v)
-                elif k == 'value' and isinstance(v, str):
-                    shown.add(v.split('.')[0])
-                walk(v)
-        elif isinstance(node, list):
-            for v in node:
-                walk(v)
-    walk(layout)
-    return frozenset(shown)
-
-
-def layout_json(condition: str = LAYOUT_CONDITION, clis: Any = None) -> str:
-    """:func:`layout` as the text of a layout file (indented, one newline at the end): for
-    :data:`LAYOUT_CONDITION`, ``config/foxglove_layout.json``."""
-    import json
-    return json.dumps(json.loads(layout(condition, clis).to_json()), indent=2) + '\n'
-
-
-def plan_live_view(plan: Any, args: Any) -> str | None:
-    """Add the live view to the children of a ``clis run`` (``--foxglove PORT``): one more
-    process, up before the robot interface and stopped last (as the recorder). An error text
-    for a bad port or ``--single-process``; else None."""
-    from clis_app.graph.plan import Child
-    if not 1 <= args.foxglove <= 65535:
-        return f'--foxglove {args.foxglove}: a TCP port in [1, 65535]'
-    if getattr(args, 'single_process', False):
-        return '--foxglove runs the live view as a process of its own: not with --single-process'
-    graph = {k: v for k, v in plan.children[0].params.items() if k.startswith('graph.')}
-    from pathlib import Path
-    plan.children.insert(0, Child('foxglove', 'clis_app', 'foxglove', {
-        **graph, 'foxglove.port': int(args.foxglove), 'foxglove.block': int(args.block),
-        'foxglove.layout': str(Path(args.out).resolve() / LAYOUT_FILE)}, stop_last=True))
-    # the simulator's first episode also waits for the view's subscription of the episode
-    # events (made once it has discovered the simulator): a short run on a fast host could
-    # otherwise end before the view had discovered it, and show nothing of the robot (seen in
-    # a fresh-clone make test). With --foxglove-wait, also for its odom subscription, made
-    # once a client watches every shown topic (foxglove.wait_for_client: _client_ready)
-    recording = any(c.name == 'recorder' for c in plan.children)
-    wait = bool(getattr(args, 'foxglove_wait', False))
-    plan.children[0].params['foxglove.wait_for_client'] = wait
-    from cr_sim.interface import parse_counts
-    for child in plan.children:
-        subs = child.params.get('node.start_subscribers') if child.name == 'sim' else None
-        if subs:
-            counts = parse_counts(tuple(subs), 'sim.node.start_subscribers')
-            counts['episode'] = counts.get('episode', 0) + 1
-            if wait:
-                counts['odom'] = counts.get('odom', 0) + 1 + recording
-            child.params['node.start_subscribers'] = [f'{t}:{n}' for t, n in counts.items()]
-    return None
 
 
 def main(args: list[str] | None = None) -> None:
