@@ -15,7 +15,7 @@ from pathlib import Path
 import subprocess
 import sys
 
-from clis_app.graph.run import _keep_rows_until
+from clis_learner.core.episodes import keep_rows_until
 import numpy as np
 import pytest
 
@@ -74,7 +74,7 @@ def test_resume_into_the_same_out_numbers_on_and_draws_anew(tmp_path):
 def test_keep_rows_until(tmp_path, keep, expect):
     path = tmp_path / 'episodes.csv'
     path.write_text('label,episode,ret\na,1,0.5\na,2,1.0\na,3,-0.1\n')
-    dropped = _keep_rows_until(path, keep)
+    dropped = keep_rows_until(path, keep)
     with open(path, newline='') as fh:
         assert [r['episode'] for r in csv.DictReader(fh)] == expect
     assert dropped == 3 - len(expect)

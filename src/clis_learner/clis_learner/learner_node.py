@@ -59,6 +59,7 @@ from sensor_msgs.msg import JointState
 
 from clis_learner.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from clis_learner.core.config import ClisParams, params_hash
+from clis_learner.core.episodes import keep_rows_until
 from clis_learner.core.stream import Closed, EpisodeStream
 from clis_learner.stream_topics import feed_episode, feed_record, record_topics
 from clis_modules import conversions as mconv
@@ -113,6 +114,13 @@ class LearnerNode(GraphNode):
         self.out = Path(self.cfg.out_dir) if self.cfg.out_dir else None
         if self.out is not None:
             self.out.mkdir(parents=True, exist_ok=True)
+            episode = meta['extra'].get('episode') if self.cfg.resume else None
+            # a learner stopped between an episode's row and its checkpoint (killed, and
+            # restarted by clis run): that row is learned again
+            if episode is not None and (n := keep_rows_until(self.out / 'episodes.csv',
+                                                             int(episode))):
+                self.get_logger().info(f'{n} rows of episodes.csv after episode {episode} '
+                                       'dropped (learned again)')
 
         self.pub_params = {name: self.create_publisher(JointState, f'{name}/params',
                                                        PARAMS_QOS) for name in self.names}

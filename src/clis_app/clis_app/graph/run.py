@@ -48,7 +48,6 @@ parameter (the child's message names the key); 3 the graph did not come up;
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import os
 from pathlib import Path
@@ -57,6 +56,7 @@ import time
 from typing import Any
 
 from clis_learner.core.config import DEFAULT_PRESET, PRESET_NAMES
+from clis_learner.core.episodes import keep_rows_until
 from clis_modules.core.plugin import parse_condition
 
 from clis_app.graph.curve import summary, write_curve
@@ -346,26 +346,6 @@ def _check_device(url: str) -> str | None:
     return None
 
 
-def _keep_rows_until(path: Path, episode: int) -> int:
-    """Drop the rows of ``episodes.csv`` after ``episode`` (written after the checkpoint a run
-    resumes from: they are run again); how many were dropped."""
-    if not path.is_file():
-        return 0
-    with open(path, newline='') as fh:
-        rows = list(csv.reader(fh))
-    if not rows or 'episode' not in rows[0]:
-        return 0
-    col = rows[0].index('episode')
-    keep = [rows[0]] + [r for r in rows[1:] if r and float(r[col]) <= episode]
-    if len(keep) == len(rows):
-        return 0
-    tmp = path.with_suffix('.csv.tmp')
-    with open(tmp, 'w', newline='') as fh:
-        csv.writer(fh).writerows(keep)
-    os.replace(tmp, path)
-    return len(rows) - len(keep)
-
-
 def main(args: argparse.Namespace) -> int:
     error = _check_args(args)
     if error:                                     # one line (a YAML error spans several)
@@ -409,7 +389,7 @@ def main(args: argparse.Namespace) -> int:
     def say(text: str) -> None:
         print(('\r\033[K' if tty else '') + text, file=sys.stderr, flush=True)
 
-    if args.first_episode > 1 and (n := _keep_rows_until(out / 'episodes.csv',
+    if args.first_episode > 1 and (n := keep_rows_until(out / 'episodes.csv',
                                                          args.first_episode - 1)):
         say(f"clis run: {n} rows of episodes.csv after the checkpoint's episode "
             f'{args.first_episode - 1} dropped (run again)')

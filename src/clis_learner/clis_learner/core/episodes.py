@@ -15,14 +15,17 @@ importance product of the whole episode when M never acted in it (NaN otherwise)
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+import csv
 import math
+import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from clis_learner.core.memory import EpisodeMemory
 
-__all__ = ['ROW_DIAGNOSTICS', 'acting_shares', 'episode_row']
+__all__ = ['ROW_DIAGNOSTICS', 'acting_shares', 'episode_row', 'keep_rows_until']
 
 #: Per-module diagnostics of the learner copied into each episode row.
 ROW_DIAGNOSTICS = ('c_final', 'c_median', 'ess', 'rho_mean', 'delta_abs_mean', 'grad_norm',
@@ -87,3 +90,25 @@ def episode_row(memory: EpisodeMemory, names: Sequence[str], p_start: np.ndarray
         row[f'log10c_{name}'] = (math.log10(max(d['c_final'], 1e-300)) if off_policy
                                  else math.nan)
     return row
+
+
+def keep_rows_until(path: Path, episode: int) -> int:
+    """Drop the rows of a run's ``episodes.csv`` after ``episode``: written after the
+    checkpoint a run or a restarted learner resumes from (the learner appends an episode's row,
+    then checkpoints it), they are learned again. How many were dropped; the file is replaced
+    atomically."""
+    if not path.is_file():
+        return 0
+    with open(path, newline='') as fh:
+        rows = list(csv.reader(fh))
+    if not rows or 'episode' not in rows[0]:
+        return 0
+    col = rows[0].index('episode')
+    keep = [rows[0]] + [r for r in rows[1:] if r and float(r[col]) <= episode]
+    if len(keep) == len(rows):
+        return 0
+    tmp = path.with_suffix('.csv.tmp')
+    with open(tmp, 'w', newline='') as fh:
+        csv.writer(fh).writerows(keep)
+    os.replace(tmp, path)
+    return len(rows) - len(keep)
