@@ -281,7 +281,8 @@ class LearnerNode(GraphNode):
                 # and `clis run --resume` drops the row and runs the episode again (the other
                 # way round the row would be lost)
                 self._append_csv(closed.row)
-                # and where the simulator stood: a resumed run goes on from there (clis_app.graph.run)
+                # and where the simulator stood: a resumed run goes on from there
+                # (clis_app.graph.run)
                 sim = self.resume_states.get(closed.episode)
                 save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,
                                 {'version': self.version, 'episode': closed.episode,
