@@ -23,6 +23,11 @@ each time, so a killed recorder leaves a file readable up to its last flushed ch
 :class:`BagReader` streams the records in file order, validating CRCs. A truncated or corrupt
 file raises :class:`BagError` naming the file and what is wrong *after* every message before
 the damage was yielded; :func:`bag_info` reports how much was readable.
+
+One piece, the format: the writer, the reader that reports damage and ``metadata.yaml`` agree
+on one layout (schema text, channel metadata, chunking, the metadata record) that rosbag2 and
+Foxglove read, and the reader's damage report depends on how the writer lays out and flushes
+chunks; apart, a change to one side would not be seen by the other.
 """
 
 from __future__ import annotations

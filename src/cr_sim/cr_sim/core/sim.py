@@ -39,6 +39,12 @@ Randomness: the ``rng`` passed in draws the start poses and the wander steering;
 noise comes from a child generator spawned from it at construction, so whether (and how often)
 a caller observes never changes the starts or the motion. Same seed, same calls -> bit-identical
 results.
+
+One piece, the simulator's state and the order of what changes it: the pose, the contact, the
+clock and the two random streams are advanced by ``reset``, ``step``, ``hold`` and the sensors
+in one fixed order, which is what makes a run bit-identical per seed and what ``carry`` and the
+resume state save; the pure parts (geometry, kinematics, the compiled kernels, the parameters)
+are modules of their own.
 """
 
 from __future__ import annotations
