@@ -4,7 +4,7 @@ old one or the new one).
 
 The temporary file is ``.NAME.tmp`` in the same folder (same file system: the rename is
 atomic). :func:`atomic_path` is the general form, for writers that take a path (matplotlib,
-numpy); the others write text, bytes, JSON and CSV rows.
+numpy); the others write text, bytes and CSV rows.
 """
 
 from __future__ import annotations
@@ -12,12 +12,10 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 import csv
-import json
 import os
 from pathlib import Path
-from typing import Any
 
-__all__ = ['atomic_path', 'write_text', 'write_bytes', 'write_json', 'write_csv']
+__all__ = ['atomic_path', 'write_text', 'write_bytes', 'write_csv']
 
 
 @contextmanager
@@ -48,12 +46,6 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically."""
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
-
-
-def write_json(path: str | os.PathLike, data: Any, **dumps: Any) -> None:
-    """Write ``json.dumps(data, **dumps)`` to ``path`` atomically, its folder made first."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    write_text(path, json.dumps(data, **dumps))
 
 
 def write_csv(path: str | os.PathLike, rows: Sequence[dict] | Sequence[Sequence],

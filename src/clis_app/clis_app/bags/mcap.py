@@ -447,8 +447,7 @@ class BagWriter:
                              self.custom_data)
 
     def write_metadata(self) -> None:
-        _atomic_write(self.path / 'metadata.yaml',
-                      _dump(self.metadata()))
+        files.write_text(self.path / 'metadata.yaml', _dump(self.metadata()), fsync=True)
 
     def close(self) -> None:
         """Finish the file (summary, indexes, footer) and write the final ``metadata.yaml``."""
@@ -502,8 +501,6 @@ def metadata_dict(topics: Mapping[str, TopicInfo], file_name: str, compression: 
     }}
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    files.write_text(path, text, fsync=True)
 
 
 # ---------------------------------------------------------------------------- reader

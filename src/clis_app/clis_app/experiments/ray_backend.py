@@ -28,7 +28,6 @@ from dataclasses import asdict
 import json
 import logging
 import os
-from pathlib import Path
 import socket
 import tempfile
 from typing import Any
@@ -95,10 +94,6 @@ def _job_task(spec: dict, queue: Any) -> tuple[bytes, bytes | None, str]:
         return path.read_bytes(), ckpt.read_bytes() if ckpt.is_file() else None, where
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    files.write_bytes(path, data)
-
-
 def _store(spec: JobSpec, result_bytes: bytes, ckpt: bytes | None, expected_hash: str,
            where: str) -> None:
     """Write a returned run where the process pool writes it (``spec.result_path()``)."""
@@ -110,7 +105,7 @@ def _store(spec: JobSpec, result_bytes: bytes, ckpt: bytes | None, expected_hash
             'checkout and config/ (docs/scale.md)')
     result.spec['run_dir'] = spec.run_dir
     if ckpt is not None:
-        _write_atomic(spec.result_path().with_suffix('.npz'), ckpt)
+        files.write_bytes(spec.result_path().with_suffix('.npz'), ckpt)
     result.save()                             # atomic; last, so done() implies the checkpoint
 
 

@@ -62,6 +62,8 @@ from cr_sim.core.sim import SimParams, Simulator, load_sim_params
 from cr_sim.core.starts import draw_start
 import numpy as np
 
+from clis_app import files
+
 __all__ = ['CONDITIONS', 'Agent', 'run_episode', 'place_selection_map', 'JobSpec', 'JobResult',
            'run_job', 'warm_up']
 
@@ -368,9 +370,7 @@ class JobResult:
     def save(self) -> Path:
         """Write to the spec's result path, atomically (a crash never leaves half a file)."""
         path = JobSpec(**self.spec).result_path()
-        tmp = path.with_suffix('.json.tmp')
-        tmp.write_text(json.dumps(asdict(self), allow_nan=True))
-        os.replace(tmp, path)
+        files.write_text(path, json.dumps(asdict(self), allow_nan=True))
         return path
 
     @classmethod

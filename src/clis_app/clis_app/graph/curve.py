@@ -8,12 +8,13 @@ From ``OUT/episodes.csv`` (one row per learned episode, written by the learner):
 from __future__ import annotations
 
 import csv
-import os
 from pathlib import Path
 from typing import Any
 
 from clis_learner.core.guard import Divergence
 import numpy as np
+
+from clis_app import files
 
 __all__ = ['divergences', 'summary', 'write_curve']
 
@@ -41,13 +42,9 @@ def write_curve(out: Path, block: int, preset: str = '') -> tuple[Path, Path] | 
     successes = result.success_curve()
     shares = result.selection_shares()
     csv_path = out / 'curve.csv'
-    tmp = csv_path.with_suffix('.csv.tmp')
-    with open(tmp, 'w', newline='') as fh:
-        w = csv.writer(fh)
-        w.writerow(['episodes', f'successes_per_{block}', *[f'share_{n}' for n in names]])
-        for k, s in enumerate(successes):
-            w.writerow([(k + 1) * block, int(s), *[round(float(x), 4) for x in shares[k]]])
-    os.replace(tmp, csv_path)
+    files.write_csv(csv_path, [[(k + 1) * block, int(s), *[round(float(x), 4) for x in shares[k]]]
+                               for k, s in enumerate(successes)],
+                    ['episodes', f'successes_per_{block}', *[f'share_{n}' for n in names]])
     png = out / 'curve.png'
     figures.run_curve(result, png)
     if len(names) > 1:
