@@ -16,7 +16,7 @@ PYTHON ?= $(shell for p in python3.11 python3.12 python3.10 python3.13 python3; 
 # A system ROS 2 Jazzy that is sourced is used instead of the PyPI wheels.
 SYSTEM_ROS := $(shell [ "$$ROS_DISTRO" = jazzy ] && python3 -c 'import rclpy' >/dev/null 2>&1 && echo 1)
 ENV := source ./env.sh
-SOURCES := $(shell find src -type f \( -name '*.py' -o -name package.xml -o -name setup.cfg \
+SOURCES := $(shell find src examples -type f \( -name '*.py' -o -name package.xml -o -name setup.cfg \
   -o -path '*/scripts/*' -o -path '*/resource/*' \) -not -path '*/__pycache__/*') $(wildcard config/*) \
   $(wildcard config/robots/*)
 RUN_ARGS ?=
@@ -49,7 +49,7 @@ endif
 install/.stamp: $(VENV)/.stamp $(SOURCES)
 	@echo "setup: colcon build"
 	@mkdir -p log; $(ENV) 2>/dev/null; AMENT_PREFIX_PATH="$(CURDIR)/$(VENV)$${AMENT_PREFIX_PATH:+:$$AMENT_PREFIX_PATH}" \
-	  $(VENV)/bin/colcon --log-base log build --base-paths src --symlink-install \
+	  $(VENV)/bin/colcon --log-base log build --base-paths src examples --symlink-install \
 	  --event-handlers console_cohesion- summary- >log/colcon-build.txt 2>&1 \
 	  || { mkdir -p log; cat log/colcon-build.txt; exit 1; }
 	@touch $@

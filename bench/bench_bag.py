@@ -27,6 +27,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(HERE.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(HERE.parent / 'src' / 'cr_sim'))
+sys.path.insert(0, str(HERE.parent / 'src' / 'clis_base'))
 from clis_app.graph.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 

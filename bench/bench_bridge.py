@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 _REPO = Path(__file__).resolve().parent.parent
-for pkg in ('cr_sim', 'cr_bridge', 'clis_learner', 'clis_app', 'clis_modules'):
+for pkg in ('clis_base', 'cr_sim', 'cr_bridge', 'clis_learner', 'clis_app', 'clis_modules'):
     sys.path.insert(0, str(_REPO / 'src' / pkg))
 
 from cr_bridge.core import protocol as proto  # noqa: E402

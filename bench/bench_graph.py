@@ -24,7 +24,7 @@ processes, lockstep, every module timer firing) and observes it from this proces
   :data:`PACED_WARMUP` s after the first commands);
 - the same run with ``--single-process`` (every node in one process and one executor);
 - the executors: the same run with every node on rclpy's SingleThreadedExecutor and on its
-  EventsExecutor (the default is :class:`cr_sim.ros_support.executor.LeanExecutor`), and the
+  EventsExecutor (the default is :class:`clis_base.ros.executor.LeanExecutor`), and the
   CPU of an idle module node (no ``/clock``) with each;
 - the round trip with ``clis run --realtime`` (opt-in: simulator, modules and arbiter under
   ``SCHED_FIFO``; the row says whether the nodes got it), as fast as it goes and at real time.
@@ -54,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_le
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_base'))
 from clis_app.graph.plan import REALTIME_ABOVE  # noqa: E402
 from clis_app.graph.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 

@@ -22,6 +22,7 @@ import time
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / 'src' / 'cr_sim'))
+sys.path.insert(0, str(ROOT / 'src' / 'clis_base'))
 
 from cr_sim.gym_env import CRNavEnv, CRNavVectorEnv  # noqa: E402
 from gymnasium.vector import SyncVectorEnv  # noqa: E402

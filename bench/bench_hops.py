@@ -10,11 +10,11 @@ shared memory between the processes, loopback only), its own ROS_DOMAIN_ID.
 
 Measured at the graph's operating points: 4 round trips per second with every process idle
 in between (the robot at real time: an Async decision instant every 0.25 s), and back to back
-(as fast as it goes), with the :class:`cr_sim.ros_support.executor.LeanExecutor` (the graph's
+(as fast as it goes), with the :class:`clis_base.ros.executor.LeanExecutor` (the graph's
 default) and rclpy's SingleThreadedExecutor; and with the LeanExecutor with all three processes
 (every thread) under ``SCHED_FIFO`` priority 10 with idle cores polling, as ``clis run
 --realtime 10`` runs the graph's sensor-to-command path
-(:func:`cr_sim.ros_support.lifecycle.realtime`; needs root, CAP_SYS_NICE or ``ulimit -r``, else
+(:func:`clis_base.ros.process.realtime`; needs root, CAP_SYS_NICE or ``ulimit -r``, else
 that row says so). p50 / p99 in ms.
 
 Under all of it, the host: a busy loop pinned to each core (normal priority, nothing else
@@ -44,10 +44,11 @@ HERE = Path(__file__).resolve()
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_learner'))
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(HERE.parent.parent / 'src' / 'cr_sim'))
+sys.path.insert(0, str(HERE.parent.parent / 'src' / 'clis_base'))
 from clis_app.graph.plan import REALTIME_PRIORITY as FIFO_PRIORITY  # noqa: E402
 from clis_app.graph.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
-from cr_sim.ros_support.executor import make_executor  # noqa: E402
-from cr_sim.ros_support.lifecycle import realtime  # noqa: E402
+from clis_base.ros.executor import make_executor  # noqa: E402
+from clis_base.ros.process import realtime  # noqa: E402
 
 GRAPH_PROFILE = HERE.parent.parent / 'config' / 'fastdds_graph.xml'
 

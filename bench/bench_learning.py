@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-for pkg in ('cr_sim', 'clis_modules', 'clis_learner', 'clis_app'):
+for pkg in ('clis_base', 'cr_sim', 'clis_modules', 'clis_learner', 'clis_app'):
     sys.path.insert(0, str(ROOT / 'src' / pkg))
 
 from clis_app.experiments.runner import Agent, run_episode  # noqa: E402

@@ -22,10 +22,10 @@ import time
 import timeit
 import types
 
+from clis_base.params import build
 from clis_modules.core.decider import Decider, Percept
 from clis_modules.core.modules import arena_map, build_module, load_module_params
 from cr_sim.core.arena import load_arena
-from cr_sim.core.params import build
 import numpy as np
 
 DOC = Path(__file__).resolve().parent.parent / 'docs' / 'modules.md'

@@ -25,6 +25,7 @@ import numpy as np
 
 _REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(_REPO / 'src' / 'cr_sim'))
+sys.path.insert(0, str(_REPO / 'src' / 'clis_base'))
 
 from cr_sim.core.arena import load_arena  # noqa: E402
 from cr_sim.core.sim import Simulator, load_sim_params  # noqa: E402

@@ -22,6 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_le
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_app'))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_base'))
 from clis_app.graph.ros_env import apply_ros_env, pick_domain_id  # noqa: E402
 
 

@@ -1,6 +1,6 @@
 """Where the sensor-to-command round trip goes: a traced ``clis run``, broken down per instant.
 
-Runs ``clis run --condition async`` with ``CLIS_TRACE`` (:mod:`cr_sim.ros_support.trace`: every
+Runs ``clis run --condition async`` with ``CLIS_TRACE`` (:mod:`clis_base.trace`: every
 node marks the steps of each decision instant with ``CLOCK_MONOTONIC`` timestamps) for
 ``--seconds`` of wall time after ``--warmup`` seconds, stops it, and breaks the round trip of
 every instant the simulator held its clock at into hops:
@@ -222,6 +222,7 @@ def main() -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_learner'))
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_app'))
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'cr_sim'))
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'src' / 'clis_base'))
     from clis_app.graph.ros_env import apply_ros_env, pick_domain_id
     os.environ.pop('ROS_DOMAIN_ID', None)
     apply_ros_env(domain_id=pick_domain_id())

@@ -1,4 +1,5 @@
-"""The shape of the code: no import cycles, pure cores, and rclpy's private API in one place."""
+"""The shape of the code: no import cycles, pure cores, one-way layers from the application down
+to clis_base, a simulator without agent concepts, and rclpy's private API in one place."""
 
 from __future__ import annotations
 
@@ -44,10 +45,15 @@ def _imports(path: Path) -> set[str]:
     return names
 
 
+#: The pure modules: every package's ``core/``, and clis_base's own (not its ``ros/``).
+def pure_modules(src: Path) -> list[Path]:
+    return sorted([*src.glob('*/*/core/*.py'), *src.glob('clis_base/clis_base/*.py')])
+
+
 def test_the_cores_import_no_ros():
     """Every package's math is in its ``core/`` subpackage, without rclpy nor messages."""
     ros = re.compile(r'^(rclpy|rcl_interfaces|\w+_msgs|std_srvs|ament_index_python)\b')
-    cores = sorted(SRC.glob('*/*/core/*.py'))
+    cores = pure_modules(SRC)
     assert cores
     for path in cores:
         bad = sorted(n for n in _imports(path) if ros.match(n))
@@ -64,7 +70,7 @@ PRIVATE = re.compile(r'\b_parameter_overrides\b|\b_time_source\b|\b_callback_typ
 
 
 def test_rclpys_private_members_are_used_in_one_module_only():
-    adapter = SRC / 'cr_sim' / 'cr_sim' / 'ros_support' / 'rclpy_private.py'
+    adapter = SRC / 'clis_base' / 'clis_base' / 'ros' / 'rclpy_private.py'
     assert PRIVATE.search(adapter.read_text(encoding='utf-8'))
     for path in sorted(SRC.rglob('*.py')):
         if path == adapter:
@@ -89,7 +95,10 @@ def test_the_robots_body_is_read_from_robot_yaml_only():
 
 
 #: The packages in the order their imports may run: each imports only those before it.
-LAYERS = ('cr_sim', 'cr_bridge', 'clis_modules', 'clis_learner', 'clis_app')
+LAYERS = ('clis_base', 'cr_sim', 'cr_bridge', 'clis_modules', 'clis_learner', 'clis_app')
+#: What belongs to the agent (the modules, the arbiter, the learner, the runner): the simulator
+#: imports none of it.
+AGENT_CONCEPTS = ('clis_base.agent_stream',)
 #: cr_bridge and clis_modules are side by side: neither imports the other.
 SIDE_BY_SIDE = {('cr_bridge', 'clis_modules'), ('clis_modules', 'cr_bridge')}
 
@@ -105,6 +114,43 @@ def upward_imports(src: Path) -> list[str]:
             if wrong:
                 bad.append(f'{path.relative_to(src)} imports {wrong}')
     return bad
+
+
+def node_plumbing_in_cores(src: Path) -> list[str]:
+    """``FILE imports [MODULE]`` for a pure module importing node plumbing (``clis_base.ros``)."""
+    return [f'{path.relative_to(src)} imports {bad}' for path in pure_modules(src)
+            if (bad := sorted(n for n in _imports(path)
+                              if n == 'clis_base.ros' or n.startswith('clis_base.ros.')))]
+
+
+def agent_concepts_in_the_simulator(src: Path) -> list[str]:
+    """``FILE imports [MODULE]`` for a simulator module importing an agent concept."""
+    return [f'{path.relative_to(src)} imports {bad}'
+            for path in sorted((src / 'cr_sim' / 'cr_sim').rglob('*.py'))
+            if (bad := sorted(n for n in _imports(path)
+                              if any(n == a or n.startswith(a + '.') for a in AGENT_CONCEPTS)))]
+
+
+def test_the_simulator_imports_no_agent_concept_and_the_cores_no_node_plumbing():
+    """The simulator package holds the simulator (the agent's stream is the learner's to keep,
+    clis_learner.core.agent_state); the pure cores import none of clis_base.ros."""
+    assert agent_concepts_in_the_simulator(SRC) == []
+    assert node_plumbing_in_cores(SRC) == []
+
+
+def test_the_floor_checks_find_what_they_look_for(tmp_path):
+    (tmp_path / 'cr_sim' / 'cr_sim' / 'core').mkdir(parents=True)
+    (tmp_path / 'clis_base' / 'clis_base').mkdir(parents=True)
+    (tmp_path / 'cr_sim' / 'cr_sim' / 'sim_node.py').write_text(
+        'def f():\n    from clis_base.agent_stream import AgentStream\n    return AgentStream\n')
+    (tmp_path / 'cr_sim' / 'cr_sim' / 'core' / 'sim.py').write_text(
+        'from clis_base.ros.process import realtime\n')
+    (tmp_path / 'clis_base' / 'clis_base' / 'params.py').write_text('import clis_base.ros\n')
+    assert agent_concepts_in_the_simulator(tmp_path) == [
+        "cr_sim/cr_sim/sim_node.py imports ['clis_base.agent_stream']"]
+    assert node_plumbing_in_cores(tmp_path) == [
+        "clis_base/clis_base/params.py imports ['clis_base.ros']",
+        "cr_sim/cr_sim/core/sim.py imports ['clis_base.ros.process']"]
 
 
 def test_imports_run_one_way_from_the_application_to_the_simulator():

@@ -15,10 +15,10 @@ import math
 import select
 import socket
 
+from clis_base.params import config_dir, ros_parameters
 from cr_bridge.bridge_node import BridgeNode
 from cr_bridge.core import protocol as proto
 from cr_sim.core.arena import load_arena
-from cr_sim.core.params import config_dir, ros_parameters
 from geometry_msgs.msg import TwistStamped
 import pytest
 import rclpy

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import math
 
+from clis_base.agent_stream import AgentStream
+from clis_base.instants import DecisionClock
 from clis_learner.core.memory import episode_time, episode_times
-from cr_sim.core.instants import DecisionClock
-from cr_sim.core.streams import AgentStream
 from cr_sim.gym_env import _layout, _layout_into
 from hypothesis import given, settings
 from hypothesis import strategies as st

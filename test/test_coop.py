@@ -12,6 +12,7 @@ from pathlib import Path
 from clis_app.cli import main as clis
 from clis_app.experiments.experiment import ablation_conditions
 from clis_app.experiments.runner import JobSpec, run_job
+from clis_base.params import config_dir
 from clis_learner.core.config import load_clis_params, preset_groups, preset_overrides
 from clis_learner.core.corrections import mixture_density
 from clis_learner.core.updates import (
@@ -24,7 +25,6 @@ from clis_learner.core.updates import (
     vtrace_targets,
 )
 from clis_modules.core.arbiter import selection_probs
-from cr_sim.core.params import config_dir
 import numpy as np
 import pytest
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+from clis_base.params import ConfigError
+from clis_learner.core.agent_state import AgentState
 from cr_bridge.core.episode import ContactParams, Reading, RobotEpisodes
 from cr_sim.core.arena import load_arena
 from cr_sim.core.episodes import (
@@ -14,7 +16,6 @@ from cr_sim.core.episodes import (
     parse_resume_state,
 )
 from cr_sim.core.gate import EpisodeGate
-from cr_sim.core.params import ConfigError
 from cr_sim.core.sim import load_sim_params
 from cr_sim.core.sim_episodes import GRAPH_POLL, SimEpisodes
 import numpy as np
@@ -61,17 +62,26 @@ def policy(obs, u):
     return np.array((0.6, 0.45))
 
 
-def run(core: SimEpisodes, n_ends: int, fresh: bool = True, pol=policy) -> list[tuple]:
+def agent(selection: str = 'episode', seed: int = 3, state: str = '', after: int = 0):
+    """The learner's agent-stream state of a run of ``make``'s seed (None: no selection)."""
+    return AgentState(seed, PERIODS, DT, selection, state, after) if selection else None
+
+
+def run(core: SimEpisodes, n_ends: int, fresh: bool = True, pol=policy,
+        learner: AgentState | None = None) -> list[tuple]:
     """Drive ``core`` as the sim node does, with ``pol`` as the graph, from its first episode
     (``fresh``) or from the next start (the ``reset`` service), until ``n_ends`` episodes
     ended (the next one is not started): every event and every tick's (episode, stamp,
-    reward, return)."""
+    reward, return). ``learner``: follows the events as the learner node does and reports
+    after each end (what the next start carries)."""
     log: list[tuple] = []
     u = np.zeros(2)
 
     def start():
         ev = core.start()
         log.append((ev.name, ev.t, dict(ev.values)))
+        if learner is not None:
+            learner.start(ev.values['episode'], ev.t, DT)
         obs, _ = core.readings_now()
         return pol(obs, np.zeros(2))
 
@@ -87,6 +97,9 @@ def run(core: SimEpisodes, n_ends: int, fresh: bool = True, pol=policy) -> list[
         ev, start_next = core.finish(res)
         if ev is not None:
             log.append((ev.name, ev.t, dict(ev.values)))
+            if learner is not None:
+                learner.end(ev.values['episode'], ev.t)
+                core.gate.on_progress(ev.values['episode'], 0, learner.announcement())
             ends += 1
             if ends == n_ends:
                 break
@@ -121,7 +134,8 @@ def test_the_book_numbers_reports_and_sums_the_rewards_of_each_episode():
 
 def test_an_episodes_end_is_reported_once():
     """The book, the simulator's reset after an end, the bridge's reset after an end: one end
-    event per episode (a second would also draw the agent stream of the episode again)."""
+    event per episode (a second would also draw the agent stream of the episode again, in a
+    node that follows it)."""
     book = EpisodeBook(EpisodeGate())
     assert book.end('reset', 0.0, 0.0) is None, 'no episode ran'
     book.start(0.0)
@@ -132,19 +146,20 @@ def test_an_episodes_end_is_reported_once():
 
     # the simulator: auto_reset off, the episode times out, the clock runs on, then `reset`
     p = params(time_limit=1.0)
-    kw = dict(p=p, decision_periods=PERIODS, agent_selection='episode')
+    kw = dict(p=p, decision_periods=PERIODS)
     core = make(auto_reset=False, **kw)
-    log = run(core, 1)
+    learner = agent()
+    log = run(core, 1, learner=learner)
     assert core.step() is None and core.step() is None, 'still: the clock runs on'
     assert core.reset() is None, 'the episode ended already'
     assert core.end('reset') is None
-    log += run(core, 1, fresh=False)
+    log += run(core, 1, fresh=False, learner=learner)
     second = events(log, 'start')[1][2]
     assert [e[0] == 'start' for e in events(log)] == [True, False, True, False]
     ended = [e[2]['episode'] for e in events(log) if e[0] != 'start']
     assert ended == [1, 2]
     # the agent stream stands where it would without the pause: drawn over episode 1 once
-    ref = events(run(make(**kw), 2), 'start')
+    ref = events(run(make(**kw), 2, learner=agent()), 'start')
     assert second['agent_state'] == ref[1][2]['agent_state']
     assert second['episode'] == 2
 
@@ -173,15 +188,15 @@ def test_an_episodes_end_is_reported_once():
 
 def test_rewards_returns_and_stamps_of_a_run():
     p = params()
-    log = run(make(p=p, decision_periods=PERIODS, readings='instants',
-                   agent_selection='episode'), 4)
+    log = run(make(p=p, decision_periods=PERIODS, readings='instants'), 4, learner=agent())
     ticks = [e for e in log if e[0] == 'tick']
     rewards = [e[3] for e in ticks]
     assert any(r < 0 for r in rewards), 'collisions: the policy bumps into walls'
     starts, ends = events(log, 'start'), [e for e in events(log) if e[0] != 'start']
     assert [e[2]['episode'] for e in starts] == [1, 2, 3, 4]
     assert [e[2]['episode'] for e in ends] == [1, 2, 3, 4]
-    assert list(starts[0][2]) == ['episode', 'start', 'pose', 'dt', 'agent_state']
+    assert list(starts[0][2]) == ['episode', 'start', 'pose', 'dt'], 'the stream at its start'
+    assert list(starts[1][2]) == ['episode', 'start', 'pose', 'dt', 'agent_state']
     assert list(ends[0][2]) == ['episode', 'episode_return', 'duration', 'resume_state']
     for n, (s, e) in enumerate(zip(starts, ends), 1):
         mine = [t for t in ticks if t[1] == n]
@@ -198,14 +213,23 @@ def test_rewards_returns_and_stamps_of_a_run():
     assert all(e[0] in ('reached', 'timeout') for e in ends)
 
 
-def stopped_and_resumed(kw: dict, n: int = 6, stop: int = 3, pol=policy
+def stopped_and_resumed(kw: dict, n: int = 6, stop: int = 3, pol=policy, selection: str = ''
                         ) -> tuple[list, list]:
     """``(whole, parts)``: the log of ``n`` episodes, and the logs of the first ``stop``
-    then of the rest, resumed from the resume state of episode ``stop``'s end."""
-    whole = run(make(**kw), n, pol=pol)
-    first = run(make(**kw), stop, pol=pol)
+    then of the rest, resumed from the resume state of episode ``stop``'s end (and, with a
+    ``selection``, the learner's agent-stream state of its checkpoint, reported before the
+    first start as the resumed learner does)."""
+    whole = run(make(**kw), n, pol=pol, learner=agent(selection))
+    learner = agent(selection)
+    first = run(make(**kw), stop, pol=pol, learner=learner)
     state = first[-1][2]['resume_state']
-    rest = run(make(first_episode=stop + 1, resume_state=state, **kw), n - stop, pol=pol)
+    resumed = make(first_episode=stop + 1, resume_state=state, **kw)
+    later = None
+    if learner is not None:
+        said = learner.announcement()
+        later = agent(selection, state=said['agent_state'], after=said['agent_after'])
+        resumed.gate.on_progress(0, 0, later.announcement())
+    rest = run(resumed, n - stop, pol=pol, learner=later)
     return whole, first + rest
 
 
@@ -216,14 +240,15 @@ def test_a_resumed_run_is_the_run_that_was_not_stopped(selection, start):
     """Stopped after episode 3 and resumed from the resume state of its end (as ``clis run
     --resume`` does, readings at the instants): the same starts, rewards, returns, stamps,
     episode numbers and streams as the run that went on."""
-    kw = dict(decision_periods=PERIODS, readings='instants', agent_selection=selection,
-              start=start)
-    whole, parts = stopped_and_resumed(kw)
-    n_first = len(run(make(**kw), 3))
+    kw = dict(decision_periods=PERIODS, readings='instants', start=start)
+    whole, parts = stopped_and_resumed(kw, selection=selection)
+    n_first = len(run(make(**kw), 3, learner=agent(selection)))
     ticks = [e for e in whole[n_first:] if e[0] == 'tick']
     assert sum(e[3] != 0.0 for e in ticks) >= 5, 'rewards after the resume'
     assert [e[2]['episode'] for e in events(parts[n_first:], 'start')] == [4, 5, 6]
     assert parts == whole
+    if selection:
+        assert 'agent_state' in events(parts[n_first:], 'start')[0][2], 'the resumed start'
     # a resumed run goes on from the state it is given (another seed's: not that run)
     other = run(make(**{**kw, 'seed': 4}), 3)[-1][2]['resume_state']
     assert run(make(first_episode=4, resume_state=other, **kw), 3) != parts[n_first:]
@@ -260,7 +285,7 @@ def test_a_resumed_run_with_readings_at_every_tick_is_the_run_that_was_not_stopp
 
 def test_the_resume_state_text_is_exact_and_checked():
     values = (0.1, -0.0, 1e-300, 2.0 / 3.0, math.pi)
-    streams = {'sim': {'rng': [1, 2]}, 'agent': None}
+    streams = {'sim': {'rng': [1, 2]}, 'starts': None}
     text = format_resume_state(values, streams)
     back, s = parse_resume_state(text, len(values))
     assert back == list(values) and s == streams

@@ -1,4 +1,4 @@
-"""cr_sim.ros_support.executor.LeanExecutor keeps rclpy's executor semantics (real rclpy and
+"""clis_base.ros.executor.LeanExecutor keeps rclpy's executor semantics (real rclpy and
 Fast DDS, one process, its own context): subscriptions, timers, guard conditions, services and
 clients, QoS events, coroutine callbacks, callback groups that turn themselves off, errors, and
 an entity destroyed by a callback."""
@@ -8,9 +8,10 @@ from __future__ import annotations
 import threading
 import time
 
-from clis_modules.graph_node import GraphNode, OnDemand
-from cr_sim.ros_support import rclpy_private
-from cr_sim.ros_support.executor import LeanExecutor, make_executor
+from clis_base.ros import rclpy_private
+from clis_base.ros.executor import LeanExecutor, make_executor
+from clis_base.ros.graph_node import GraphNode, OnDemand
+from clis_modules.core.modules import ModuleSetParams
 import pytest
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -214,7 +215,7 @@ class _Log:
 
 def test_the_lean_executor_is_made_for_the_rclpy_it_was_written_for(ctx):
     assert rclpy_private.rclpy_version() == rclpy_private.WRITTEN_FOR, (
-        'the installed rclpy is not the one cr_sim.ros_support.rclpy_private was written for: '
+        'the installed rclpy is not the one clis_base.ros.rclpy_private was written for: '
         'check its private members, then update WRITTEN_FOR')
     log = _Log()
     assert type(make_executor('lean', logger=log, context=ctx)) is LeanExecutor
@@ -236,7 +237,7 @@ def test_on_another_rclpy_the_executor_falls_back_to_rclpys_with_a_warning(ctx, 
 
 def test_on_another_rclpy_a_graph_node_takes_its_clock_as_any_subscription(ctx, monkeypatch):
     monkeypatch.setattr(rclpy_private, 'rclpy_version', lambda: '0.0.0')
-    node = GraphNode('fallback_probe', context=ctx)
+    node = GraphNode('fallback_probe', clis_cls=ModuleSetParams, context=ctx)
     try:
         assert node.sim_time
         node.clock_on_demand()

@@ -137,7 +137,7 @@ def _complete_files(out: Path) -> None:
 def test_interrupted_experiment_resumes_to_the_same_results(tmp_path, monkeypatch):
     import shutil
 
-    from cr_sim.core.params import config_dir
+    from clis_base.params import config_dir
     # a copy of config/: an edit of the working tree's during the test would change the runs'
     # parameter hash, which --resume rightly refuses
     shutil.copytree(config_dir(), tmp_path / 'config')
@@ -183,7 +183,7 @@ def test_a_run_process_dies_on_sigterm_whatever_the_parent_handles():
     ``_worker_signals`` gives SIGTERM back its default action."""
     import multiprocessing as mp
 
-    from clis_app.experiments.experiment import _worker_signals
+    from clis_app.experiments.pool import _worker_signals
 
     ctx = mp.get_context('fork')
     old = signal.signal(signal.SIGTERM, lambda signum, frame: None)    # remembered, no more
@@ -244,11 +244,11 @@ def _dies(spec, q) -> None:
 
 
 def test_an_interrupt_kills_every_run_even_one_that_ignores_sigterm(tmp_path, monkeypatch):
-    from clis_app.experiments import experiment
-    monkeypatch.setattr(experiment, '_worker', _ignores_sigterm_and_reports)
+    from clis_app.experiments import pool
+    monkeypatch.setattr(pool, '_worker', _ignores_sigterm_and_reports)
     t0 = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
-        experiment._run_all([_spec(tmp_path, k) for k in range(3)], 2, True,
+        pool._run_all([_spec(tmp_path, k) for k in range(3)], 2, True,
                             _StopAtFirstProgress())
     assert _runs_alive() == []
     assert time.monotonic() - t0 < 60                  # a hang guard, not a timing
@@ -257,11 +257,11 @@ def test_an_interrupt_kills_every_run_even_one_that_ignores_sigterm(tmp_path, mo
 @pytest.mark.parametrize('worker, message', [(_raises, 'ValueError: a run that fails: boom'),
                                              (_dies, 'exit code 3')])
 def test_a_failed_run_stops_the_others_and_says_why(tmp_path, monkeypatch, worker, message):
-    from clis_app.experiments import experiment
-    monkeypatch.setattr(experiment, '_worker', worker)
-    with pytest.raises(experiment.RunError, match='view seed 0') as err:
-        experiment._run_all([_spec(tmp_path, k) for k in range(3)], 1, True,
-                            experiment.Progress(total_episodes=3, runs=3, quiet=True))
+    from clis_app.experiments import pool
+    monkeypatch.setattr(pool, '_worker', worker)
+    with pytest.raises(pool.RunError, match='view seed 0') as err:
+        pool._run_all([_spec(tmp_path, k) for k in range(3)], 1, True,
+                            pool.Progress(total_episodes=3, runs=3, quiet=True))
     assert message in str(err.value)
     assert _runs_alive() == []
 
@@ -269,10 +269,10 @@ def test_a_failed_run_stops_the_others_and_says_why(tmp_path, monkeypatch, worke
 def test_the_eta_weighs_each_runs_episodes_by_their_cost(capsys, monkeypatch):
     """Longest runs go first: an ETA by episodes alone would count the cheap ones left as
     dear as the dear ones done (a study's first ETA was twice its time)."""
-    from clis_app.experiments import experiment
+    from clis_app.experiments import pool
     clock = iter([100.0, 110.0])
-    monkeypatch.setattr(experiment.time, 'monotonic', lambda: next(clock))
-    progress = experiment.Progress(total_episodes=200, runs=2, cost=[(100, 5.5), (100, 1.0)])
+    monkeypatch.setattr(pool.time, 'monotonic', lambda: next(clock))
+    progress = pool.Progress(total_episodes=200, runs=2, cost=[(100, 5.5), (100, 1.0)])
     progress.finish(0, 100, 'async done')      # 10 s for the first (dear) half of the episodes
     line = capsys.readouterr().err
     # work done 550 of 650: 10 s * 100 / 550 = 1.8 s left (by episodes alone: 10 s)

@@ -29,7 +29,7 @@ TINY = ['--conditions', 'view', '--episodes', '2', '--block', '2', '--seeds', '1
 def own_config(tmp_path_factory):
     """A copy of config/ for this module: an edit of the working tree's between the tiny run
     and a --resume of it would change the parameter hash, which --resume rightly refuses."""
-    from cr_sim.core.params import config_dir
+    from clis_base.params import config_dir
     copy = tmp_path_factory.mktemp('config') / 'config'
     shutil.copytree(config_dir(), copy)
     with pytest.MonkeyPatch.context() as mp:

@@ -7,10 +7,10 @@ from __future__ import annotations
 import math
 
 from clis_app.experiments.runner import Agent, run_episode
+from clis_base.params import ConfigError, identity_dict
 from clis_learner.core.config import load_clis_params, params_hash, preset_overrides
 from clis_modules.core.arbiter import selection_probs, uncertainty
 from cr_sim.core.arena import load_arena
-from cr_sim.core.params import ConfigError, identity_dict
 from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest

@@ -40,7 +40,7 @@ from clis_app.live.layout import (
     layout_json,
     shown_topics,
 )
-from cr_sim.core.params import config_dir, ros_parameters
+from clis_base.params import config_dir, ros_parameters
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 from nav_msgs.msg import Odometry

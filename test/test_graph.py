@@ -19,9 +19,9 @@ import subprocess
 import sys
 import time
 
+from clis_base.params import config_dir, ros_parameters
 from clis_modules.core.modules import condition_periods, load_module_params, module_gamma
 from cr_sim.conversions import from_time
-from cr_sim.core.params import config_dir, ros_parameters
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import OccupancyGrid

@@ -11,12 +11,12 @@ import signal
 import subprocess
 import sys
 
+from clis_base.params import config_dir, ros_parameters
+from clis_base.ros.graph_node import proposal_qos
 from clis_modules.core.arbiter import selection_probs
 from clis_modules.core.modules import condition_periods, load_module_params, module_gamma
 from clis_modules.core.proposal import Proposal
-from clis_modules.graph_node import proposal_qos
 from cr_sim.conversions import from_time, to_time
-from cr_sim.core.params import config_dir, ros_parameters
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 import pytest

@@ -371,7 +371,7 @@ def test_episode_gate_waits_for_the_graph_then_the_learner():
 
 
 def test_start_subscribers_are_parsed_with_errors_naming_the_key():
-    from cr_sim.core.params import ConfigError
+    from clis_base.params import ConfigError
     from cr_sim.interface import parse_counts
     assert parse_counts(('episode:5', '/clock:4', ''), 'k') == {'episode': 5, '/clock': 4}
     assert parse_counts(('',), 'k') == {}

@@ -8,6 +8,7 @@ import copy
 import itertools
 import math
 
+from clis_base.params import config_dir
 from cr_sim.core.arena import load_arena, parse_arena
 from cr_sim.core.layout import (
     LANDMARKS,
@@ -18,7 +19,6 @@ from cr_sim.core.layout import (
     passage,
     situation_problems,
 )
-from cr_sim.core.params import config_dir
 from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest

@@ -5,11 +5,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from clis_base.params import ConfigError, config_dir, ros_parameters
 from clis_learner.core import checkpoint as ckpt
 from clis_learner.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from clis_learner.core.config import load_clis_params, params_hash
 from clis_modules.core.modules import make_modules
-from cr_sim.core.params import ConfigError, config_dir, ros_parameters
 import numpy as np
 import pytest
 import yaml

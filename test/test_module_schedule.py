@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import math
 
+from clis_base.instants import DecisionClock
 from clis_learner.core.config import load_clis_params
+from clis_modules.core.draws import AgentStream
 from clis_modules.core.modules import arena_map, make_module
 from clis_modules.core.schedule import (
     STALL_WARNING,
@@ -17,9 +19,7 @@ from clis_modules.core.schedule import (
     ResetTimer,
     off_grid_rng,
 )
-from clis_modules.core.streams import AgentStream
 from cr_sim.core.arena import load_arena
-from cr_sim.core.instants import DecisionClock
 from cr_sim.core.robot import load_robot_params
 import numpy as np
 import pytest

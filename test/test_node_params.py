@@ -1,4 +1,4 @@
-"""Node parameters, checked once for every node (cr_sim.ros_support.ros_params, docs/design.md).
+"""Node parameters, checked once for every node (clis_base.ros.ros_params, docs/design.md).
 
 Each node's installed console script (what ``ros2 run PKG EXE`` runs) is started as a real
 process: a key no node declares stops it with exit code 2 and one line naming the nearest known

@@ -18,6 +18,7 @@ import subprocess
 import sys
 
 from clis_app.experiments.runner import Agent, JobSpec, run_episode, run_job
+from clis_base.params import ConfigError, config_dir, load_yaml
 from clis_learner.core.config import load_clis_params
 from clis_modules.core import plugin as plugin_api
 from clis_modules.core.modules import (
@@ -40,7 +41,6 @@ from clis_modules.core.plugin import (
     read_entry_points,
 )
 from cr_sim.core.arena import load_arena
-from cr_sim.core.params import ConfigError, config_dir, load_yaml
 from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest
@@ -96,7 +96,8 @@ def test_without_the_packages_metadata_the_same_plugins_are_found(tmp_path):
             'from clis_modules.core.plugin import plugins, get_plugin\n'
             'print(json.dumps([found, plugins(), type(get_plugin("place")).__name__]))')
     env = {'PATH': os.environ.get('PATH', ''), 'HOME': str(tmp_path),
-           'PYTHONPATH': os.pathsep.join(str(src / p) for p in ('cr_sim', 'clis_modules'))}
+           'PYTHONPATH': os.pathsep.join(str(src / p)
+                                         for p in ('clis_base', 'cr_sim', 'clis_modules'))}
     out = subprocess.run([sys.executable, '-S', '-c', code], capture_output=True, text=True,
                          env=env, cwd=tmp_path, timeout=120)
     if out.returncode != 0 and 'numpy' in out.stderr:
@@ -375,15 +376,16 @@ def test_graph_plan_starts_any_module_as_the_generic_node(tmp_path):
     assert sim.params['node.command'] == 'wheels_cmd'       # the arbiter's wheels, exact
 
 
-def test_graph_plan_takes_the_periods_and_selection_of_the_params_files(tmp_path):
-    """The nodes read ``--params``; the simulator's lockstep instants and agent stream must
-    be those too (they came from config/clis.yaml alone: a period override deadlocked the
-    lockstep at instants no module decided on)."""
+def test_graph_plan_takes_the_periods_of_the_params_files(tmp_path):
+    """The nodes read ``--params``; the simulator's lockstep instants must be those too (they
+    came from config/clis.yaml alone: a period override deadlocked the lockstep at instants no
+    module decided on). The agent stream is not the simulator's: the learner, which reads the
+    same files, keeps it (clis_learner.core.agent_state)."""
     from clis_app.graph.plan import plan_graph
     sim = plan_graph('async:innate+wall', 0, tmp_path, 0.0, clis_overrides={
         'wall.period': 1.0, 'arbiter.selection': 'decision'}).by_name('sim')
     assert sim.params['node.lockstep_periods'] == [0.25, 1.0]
-    assert sim.params['node.agent_selection'] == 'decision'
+    assert not any('agent' in key for key in sim.params)
 
 
 def test_the_recorded_topics_are_those_of_the_conditions_modules():

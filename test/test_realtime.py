@@ -1,5 +1,5 @@
 """The opt-in real-time priority of the sensor-to-command path (``clis run --realtime``,
-:func:`cr_sim.ros_support.lifecycle.realtime`): it is off unless asked, it fails soft with a
+:func:`clis_base.ros.process.realtime`): it is off unless asked, it fails soft with a
 message that says why (no right to it), it never leaves a process half real-time, a granted
 priority holds the CPU wake-up latency at 0 us for the process's life, and ``clis run`` gives
 it to the simulator, the modules and the arbiter only."""
@@ -12,8 +12,8 @@ import sys
 import textwrap
 
 from clis_app.graph.plan import plan_graph
-from cr_sim.ros_support import lifecycle
-from cr_sim.ros_support.lifecycle import realtime
+from clis_base.ros import process as lifecycle
+from clis_base.ros.process import realtime
 import pytest
 
 
@@ -80,7 +80,7 @@ def test_a_process_without_the_right_runs_on_with_the_default_scheduling():
     warning line and keeps its scheduling; one that may (root here) gets SCHED_FIFO."""
     code = textwrap.dedent("""
         import os, sys
-        from cr_sim.ros_support.lifecycle import realtime  # (nobody may not read the venv)
+        from clis_base.ros.process import realtime  # (nobody may not read the venv)
         if os.geteuid() == 0 and sys.argv[1] == 'drop':
             os.setgid(65534); os.setuid(65534)          # nobody: no CAP_SYS_NICE
         ok, said = realtime(10)
@@ -124,7 +124,7 @@ def test_a_shutdown_race_is_a_clean_stop_and_a_real_error_is_raised():
     raised."""
     import threading
 
-    from cr_sim.ros_support.lifecycle import reraise_unless_shut_down
+    from clis_base.ros.process import reraise_unless_shut_down
     import rclpy
 
     context = rclpy.Context()

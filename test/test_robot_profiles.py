@@ -1,4 +1,4 @@
-"""Robot profiles (cr_bridge.core.profile, config/robots): every shipped profile loads, the cr
+"""Robot profiles (cr_sim.core.profile, config/robots): every shipped profile loads, the cr
 profile is the simulator's robot, and a bad value is reported with its key and range."""
 
 from __future__ import annotations
@@ -7,12 +7,12 @@ import math
 from pathlib import Path
 import shutil
 
+from clis_base.params import ConfigError, as_dict, config_dir, load_yaml
 from clis_modules.core.blobs import NAMED_RANGES, ColourRange
-from cr_bridge.core import profile as prof
-from cr_bridge.core.profile import ColourSpec, load_profile
+from cr_sim.core import profile as prof
 from cr_sim.core.arena import load_arena
 from cr_sim.core.camera import Panoramic, Pinhole
-from cr_sim.core.params import ConfigError, as_dict, config_dir, load_yaml
+from cr_sim.core.profile import ColourSpec, load_profile
 from cr_sim.core.render import DESTINATION_COLOUR, RenderParams
 from cr_sim.core.robot import load_robot_params
 from cr_sim.core.sim import load_sim_params

@@ -4,9 +4,9 @@ learn the same episodes ("one implementation", docs/design.md).
 Both drive the same cores on the same random streams (docs/design.md §6): the simulator's
 ``(seed, 0)`` and the starts' ``(seed, 1)``, continuous over the episodes, and ONE agent stream
 ``(seed, 2)`` that the runner draws from in its call order and that the graph's module and
-arbiter nodes replay (:mod:`cr_sim.core.streams`); the graph's simulator reads the IR and the
+arbiter nodes replay (:mod:`clis_base.agent_stream`); the graph's simulator reads the IR and the
 camera at the decision instants only, as the runner does; the decision instants are integer
-ticks in both (:mod:`cr_sim.core.instants`); episodes are numbered from 1 in both tables.
+ticks in both (:mod:`clis_base.instants`); episodes are numbered from 1 in both tables.
 
 Every column matches to the character: who started where, the outcome, the duration, the
 collisions, the return, who acted and for how long (``share_*``), ``Pr(i | x_0)`` and

@@ -7,6 +7,7 @@ import copy
 import math
 from pathlib import Path
 
+from clis_base.params import ConfigError, config_dir, load_yaml, replace
 from cr_sim.core import sim as sim_module
 from cr_sim.core.arena import ArenaError, load_arena, parse_arena
 from cr_sim.core.geometry import (
@@ -19,7 +20,6 @@ from cr_sim.core.geometry import (
     wrap_angles,
 )
 from cr_sim.core.observation import Observation
-from cr_sim.core.params import ConfigError, config_dir, load_yaml, replace
 from cr_sim.core.robot import (
     clamp_wheels,
     integrate_arc,

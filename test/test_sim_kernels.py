@@ -465,7 +465,7 @@ def test_the_numpy_layout_reader_is_pinned_to_the_versions_it_was_checked_on():
     """numpy's own loops are called from the kernels only on a numpy whose ufunc layout was
     checked (requirements-py.txt pins one); on any other the raw offsets are not read, the
     loops are zeros (the C library's functions) and a warning says so."""
-    from cr_sim.core import ufunc_loops
+    from clis_base import ufunc_loops
     assert ufunc_loops.supported(), ufunc_loops.numpy_version()
     assert ufunc_loops.LOOPS[0] != 0 and ufunc_loops.LOOPS[2] != 0
     assert not ufunc_loops.supported('2.5.0') and not ufunc_loops.supported('1.26.4')

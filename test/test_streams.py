@@ -4,9 +4,9 @@ decision instants in integer ticks."""
 
 from __future__ import annotations
 
-from clis_modules.core.streams import AgentStream, module_draws, selection_draws
+from clis_base.instants import DecisionClock
+from clis_modules.core.draws import AgentStream, module_draws, selection_draws
 from cr_sim.core.arena import load_arena
-from cr_sim.core.instants import DecisionClock
 from cr_sim.core.sim import Simulator, load_sim_params
 import numpy as np
 import pytest

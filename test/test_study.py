@@ -13,7 +13,7 @@ import shutil
 from clis_app.cli import main as clis
 from clis_app.study import report as study_report
 from clis_app.study import study
-from cr_sim.core.params import config_dir
+from clis_base.params import config_dir
 import pytest
 from test_markdown_tables import bad_rows
 import yaml

@@ -14,7 +14,7 @@ from clis_app.graph.ros_env import PROFILE_VAR, apply_ros_env, loopback_profile
 import pytest
 from ros_util import in_netns, netns_available, netns_tx_packets
 
-PACKAGES = ('clis_modules', 'clis_learner', 'clis_app', 'cr_bridge', 'cr_sim')
+PACKAGES = ('clis_modules', 'clis_learner', 'clis_app', 'cr_bridge', 'cr_sim', 'clis_base')
 
 
 def console_scripts(setup_py: Path) -> list[str]:

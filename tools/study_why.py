@@ -254,11 +254,11 @@ def _start_probs(d: dict, out: Path, draws: int = 5) -> dict[str, list[float]] |
     import re
 
     from clis_app.experiments.runner import Agent
+    from clis_base.instants import DecisionClock
     from clis_learner.core.checkpoint import load_checkpoint
     from clis_learner.core.config import load_clis_params, preset_overrides
     from clis_modules.core.decider import Percept
     from cr_sim.core.arena import load_arena
-    from cr_sim.core.instants import DecisionClock
     from cr_sim.core.sim import Simulator, load_sim_params
     label = f'{d["arena"]}/{d["protocol"]}/{d["preset"]}/{d["condition"]}'
     ckpt = out / 'work' / (re.sub(r'[^A-Za-z0-9_.=-]+', '_', label) + f'__s{d["seed"]}.npz')

@@ -41,6 +41,7 @@ setup(
             'place = clis_modules.module_node:main_place',
             'arbiter = clis_modules.arbiter_node:main',
             'module = clis_modules.module_node:main',
+            'detector = clis_modules.detector_node:main',
         ],
         # the module plug-ins, group clis.modules (clis_modules.core.plugin; docs/modules.md)
         **own_entry_points(),

@@ -1,15 +1,6 @@
-import os
-from pathlib import Path
-
 from setuptools import find_packages, setup
 
 package_name = 'cr_sim'
-HERE = Path(__file__).resolve().parent
-
-# The project's config/ (parameter files, arena, DDS profile) is installed with cr_sim,
-# the package every other one depends on; config_dir() finds it there.
-CONFIG = sorted(str(p) for p in (HERE.parent.parent / 'config').glob('*.*'))
-ROBOTS = sorted(str(p) for p in (HERE.parent.parent / 'config' / 'robots').glob('*.yaml'))
 
 setup(
     name=package_name,
@@ -18,9 +9,6 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', [os.path.relpath(c, HERE) for c in CONFIG]),
-        ('share/' + package_name + '/config/robots',
-         [os.path.relpath(c, HERE) for c in ROBOTS]),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

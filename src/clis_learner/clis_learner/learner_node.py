@@ -4,7 +4,7 @@ Subscribes to the streams the paper's learning thread reads: every module's prop
 (``<module>/proposal``: its decision times and features ``b_i(x)``), the executed commands
 (``arbiter/action``: who acted and its proposal), the arbiter's draws (``arbiter/selection``),
 the rewards (``reward``, stamped at the end of the step that earned them) and the ``episode``
-events. The records go into an :class:`~clis_learner.core.stream.EpisodeStream` (a
+events. The records go into an :class:`~clis_learner.core.intake.EpisodeStream` (a
 :class:`~clis_learner.core.memory.StreamBuffer`; ``clis learn`` feeds the same one from a bag)
 in whatever order they arrive; when an episode ends (and all of its records have arrived: its
 last reward, the arbiter's stop at its end, under sim time each module's last decision
@@ -31,7 +31,7 @@ reads, or after ``learner_node.connect_timeout`` s.
 Wakeups: the learner is off the sensor-to-command path, and a wakeup of its own at a decision
 instant would take a core from the module or the arbiter that is on it. So the streams
 (rewards, proposals, actions, draws) are not taken one by one: they wait in their queues
-(:class:`~clis_modules.graph_node.OnDemand`) and are taken every 0.1 s of wall time, at each
+(:class:`~clis_base.ros.graph_node.OnDemand`) and are taken every 0.1 s of wall time, at each
 episode event, and while an ended episode waits for its records (every 5 ms). The learner
 reads no clock, so under sim time it takes ``/clock`` only on demand too (never). It is woken
 by the episode events and its wall timer, not by the decisions nor at every tick.
@@ -45,23 +45,27 @@ import os
 from pathlib import Path
 import time
 
-from clis_modules.core.modules import arena_map, make_modules
-from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
+from clis_base.params import ConfigError, dataclass, param
+from clis_base.ros.graph_node import GraphNode, OnDemand, run_node, take_all
+from clis_base.trace import mark
+from clis_modules.core.modules import arena_map, condition_periods, make_modules
+from clis_modules.core.plugin import parse_condition
 from clis_modules.module_node import END_EVENTS, LATCHED, PARAMS_QOS
-from cr_sim.core.params import ConfigError, dataclass, param
+from cr_sim.core.arena import load_arena
+from cr_sim.core.sim import load_sim_params
 from cr_sim.interface import unmatched
-from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 
+from clis_learner.core.agent_state import AgentState
 from clis_learner.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from clis_learner.core.config import ClisParams, params_hash
 from clis_learner.core.episodes import keep_rows_until
-from clis_learner.core.stream import Closed, EpisodeStream
-from clis_learner.stream_topics import feed_episode, feed_record, record_topics
+from clis_learner.core.intake import Closed, EpisodeStream
+from clis_learner.intake_topics import feed_episode, feed_record, record_topics
 from clis_modules import conversions as mconv
 from cr_sim import conversions as rconv
 
@@ -89,16 +93,19 @@ class LearnerNodeParams:
 
 
 class LearnerNode(GraphNode):
-    """Thin glue around an :class:`~clis_learner.core.stream.EpisodeStream` (module docstring)."""
+    """Thin glue around an :class:`~clis_learner.core.intake.EpisodeStream` (module docstring)."""
 
     control_path = False                    # learns between episodes: never real-time
 
     def __init__(self) -> None:
-        super().__init__('learner', 'learner_node', LearnerNodeParams, clis_cls=ClisParams)
-        self.modules = make_modules(self.clis, self.graph.condition, *arena_map(self.arena()))
+        super().__init__('learner', 'learner_node', LearnerNodeParams, clis_cls=ClisParams,
+                         check_condition=parse_condition)
+        self.modules = make_modules(self.clis, self.graph.condition,
+                                    *arena_map(load_arena(self.graph.arena_file or None)))
         self.names = [m.name for m in self.modules]
         self.hash = params_hash(self.clis)
         version = 0
+        meta: dict = {'extra': {}}
         if self.cfg.resume:
             try:
                 meta = load_checkpoint(self.cfg.resume, self.modules, self.hash)
@@ -111,6 +118,15 @@ class LearnerNode(GraphNode):
         self._held_said = False
         self.stream = EpisodeStream(self.modules, self.clis, self.graph.condition,
                                     self.graph.seed, version)
+        # the agent's random stream after each episode, for the next start to carry
+        # (clis_learner.core.agent_state); a resumed run's from its checkpoint
+        extra = meta['extra']
+        taus = [tau for _, tau in condition_periods(self.clis, self.graph.condition)]
+        self.agent = AgentState(
+            self.graph.seed, taus, load_sim_params().episode.dt, self.clis.arbiter.selection,
+            str(extra.get('agent_state', '')), int(extra.get('agent_after', 0)))
+        if self.cfg.resume and 'agent_state' not in extra:
+            self.agent.after = None              # a checkpoint without it: unknown
         self.out = Path(self.cfg.out_dir) if self.cfg.out_dir else None
         if self.out is not None:
             self.out.mkdir(parents=True, exist_ok=True)
@@ -132,7 +148,7 @@ class LearnerNode(GraphNode):
         def stream(msg_type, topic: str, callback):
             return self.create_subscription(msg_type, topic, callback, rconv.STREAM_DEPTH,
                                             callback_group=on_demand)
-        # the record streams and their routing into the episode stream (stream_topics, as
+        # the record streams and their routing into the episode stream (intake_topics, as
         # clis learn reads a bag)
         callbacks = {'proposal': self._on_proposal, 'observation': self._on_observation,
                      'action': self._on_action,
@@ -222,11 +238,14 @@ class LearnerNode(GraphNode):
         ev = feed_episode(self.stream, msg, now + self.cfg.close_timeout,
                           now + self.cfg.close_grace)
         if ev.event == 'start':
+            self.agent.start(ev.index, ev.t,
+                             float(ev.values.get('dt', self.agent.stream.clock.dt)))
             if ev.closed is not None:
                 self._closed(ev.closed)
             if self.cfg.episodes and self.version >= self.cfg.episodes:
                 self.stream.episode = None        # the run has learned its episodes
         elif ev.event in END_EVENTS:
+            self.agent.end(ev.index, ev.t)
             if 'resume_state' in ev.values:
                 self.resume_states[ev.index] = ev.values['resume_state']
             if ev.skipped is not None:            # its start was not seen: nothing to learn
@@ -287,7 +306,8 @@ class LearnerNode(GraphNode):
                 save_checkpoint(self.out / 'checkpoint.npz', self.modules, self.hash,
                                 {'version': self.version, 'episode': closed.episode,
                                  'condition': self.graph.condition, 'seed': self.graph.seed,
-                                 **({'sim_state': sim} if sim else {})})
+                                 **({'sim_state': sim} if sim else {}),
+                                 **self._agent_after(closed.episode)})
             self.resume_states = {k: v for k, v in self.resume_states.items()
                                   if k > closed.episode}
             self._publish_params(closed.t_end)
@@ -299,8 +319,13 @@ class LearnerNode(GraphNode):
             self.pub_params[m.name].publish(mconv.params_msg(m.name, m.w, m.W, m.sigma,
                                                              self.version, t))
 
+    def _agent_after(self, episode: int) -> dict:
+        """The agent stream's state after ``episode`` (if that is where it stands)."""
+        said = self.agent.announcement()
+        return said if said.get('agent_after') == episode else {}
+
     def _progress(self, row: dict, t: float) -> None:
-        row = {'version': self.version, **row}
+        row = {'version': self.version, **row, **self.agent.announcement()}
         self.pub_progress.publish(rconv.event_msg(
             PROGRESS_STATUS, 'learned' if row.get('learned') else 'skipped', t, **row))
 

@@ -17,7 +17,7 @@ counts as missing), the Selector gets them together, as in the headless runner, 
 lockstep (``node.lockstep``, holding at the same instants) waits for it before the next tick
 (:mod:`clis_modules.core.lockstep`). Between two decision instants the command cannot change
 and the simulator does not wait: they get no ``cmd_vel``. In lockstep the arbiter takes
-``/clock`` on demand (:meth:`~clis_modules.graph_node.GraphNode.clock_on_demand`): an
+``/clock`` on demand (:meth:`~clis_base.ros.graph_node.GraphNode.clock_on_demand`): an
 instant opens when a proposal stamped with it arrives, or when the clock, read at every
 proposal and every 10 ms of wall time, stands at it (an instant whose due modules are all
 missing), so the arbiter is not woken at every tick.
@@ -37,11 +37,12 @@ from __future__ import annotations
 import math
 import time
 
-from cr_sim.core.instants import DecisionClock
-from cr_sim.core.params import dataclass, param
+from clis_base.instants import DecisionClock
+from clis_base.params import dataclass, param
+from clis_base.ros.graph_node import GraphNode, run_node
+from clis_base.trace import mark
 from cr_sim.core.robot import load_robot_params
 from cr_sim.core.sim import load_sim_params
-from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 import numpy as np
@@ -51,15 +52,16 @@ from sensor_msgs.msg import JointState
 
 from clis_modules import conversions as conv
 from clis_modules.core.arbiter import Command, Selector, refuse_bonus
+from clis_modules.core.draws import AgentStream, selection_draws
 from clis_modules.core.lockstep import TickBarrier
 from clis_modules.core.modules import (
     CommonParams,
+    ModuleSetParams,
     condition_periods,
     module_gamma,
     speed_limit,
 )
-from clis_modules.core.streams import AgentStream, selection_draws
-from clis_modules.graph_node import GraphNode, run_node
+from clis_modules.core.plugin import parse_condition
 from clis_modules.module_node import END_EVENTS, LATCHED
 from cr_sim import conversions as rconv
 
@@ -94,14 +96,15 @@ class ArbiterNode(GraphNode):
     """Thin glue around a :class:`Selector` (module docstring)."""
 
     def __init__(self) -> None:
-        super().__init__('arbiter', 'arbiter_node', ArbiterNodeParams)
+        super().__init__('arbiter', 'arbiter_node', ArbiterNodeParams, clis_cls=ModuleSetParams,
+                         check_condition=parse_condition)
         refuse_bonus(self.clis.arbiter.bonus)
         common = self.clis.common
         names, gammas, v_max, taus = module_timing(
             common, condition_periods(self.clis, self.graph.condition))
         self.names = names
         # the selections' draws: the headless runner's agent stream (seed, 2), replayed over
-        # the condition's decision instants (cr_sim.core.streams); off them (real time, a
+        # the condition's decision instants (clis_base.agent_stream); off them (real time, a
         # timeout) from (seed, 3)
         self.clock_periods = [float(tau) for tau in taus]
         self.clock = DecisionClock(self.clock_periods, load_sim_params().episode.dt)

@@ -15,7 +15,7 @@ sigma, V_i(x), features, stamped with the time of the sensor readings it used; l
 (nav_msgs/OccupancyGrid, marginal over heading; any module with a ``display`` hook).
 
 The readings are taken when a decision is due, not as they arrive
-(:class:`~clis_modules.graph_node.OnDemand`): they wait in their subscriptions' queues
+(:class:`~clis_base.ros.graph_node.OnDemand`): they wait in their subscriptions' queues
 (:data:`~clis_modules.core.schedule.READINGS_DEPTH` deep, more than the ticks of the longest
 period) and the module takes them all at its decision instant; only if those of the instant
 have not arrived yet does the executor wake the module for them. A module is so woken once per
@@ -28,7 +28,7 @@ the headless runner; after ``reached``/``timeout``/``reset`` it stays silent unt
 start.
 
 Randomness: the headless runner's agent stream ``(seed, 2)``, replayed over the condition's
-decision instants (:mod:`cr_sim.core.streams`: the node makes every module's and the
+decision instants (:mod:`clis_base.agent_stream`: the node makes every module's and the
 arbiter's draws in the runner's order and keeps its own), from the state the simulator
 announces at each start; a decision off the tick grid (real time) draws from a stream of its
 own.
@@ -49,10 +49,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from cr_sim.core.params import ConfigError, dataclass, param
+from clis_base.params import ConfigError, dataclass, param
+from clis_base.ros.graph_node import GraphNode, OnDemand, run_node, take_all
+from clis_base.trace import mark
+from cr_sim.core.arena import load_arena
 from cr_sim.core.robot import load_robot_params
 from cr_sim.core.sim import load_sim_params
-from cr_sim.ros_support.trace import mark
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
 from rclpy.clock import Clock, ClockType
@@ -60,7 +62,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import JointState
 
 from clis_modules import conversions as conv
-from clis_modules.core.modules import arena_map, condition_periods, make_module
+from clis_modules.core.modules import ModuleSetParams, arena_map, condition_periods, make_module
+from clis_modules.core.plugin import parse_condition
 from clis_modules.core.schedule import (
     READINGS_DEPTH,
     Log,
@@ -69,7 +72,6 @@ from clis_modules.core.schedule import (
     PublishObservation,
     ResetTimer,
 )
-from clis_modules.graph_node import GraphNode, OnDemand, run_node, take_all
 from cr_sim import conversions as rconv
 
 __all__ = ['ModuleNodeParams', 'ModuleNode', 'main', 'main_innate', 'main_view', 'main_place']
@@ -102,14 +104,15 @@ class ModuleNode(GraphNode):
     """
 
     def __init__(self, name: str | None = None) -> None:
-        super().__init__(name or 'module', 'module', ModuleNodeParams)
+        super().__init__(name or 'module', 'module', ModuleNodeParams,
+                         clis_cls=ModuleSetParams, check_condition=parse_condition)
         name = self.get_name()                  # the instance (``-r __node:=NAME``)
         listed = condition_periods(self.clis, self.graph.condition)
         periods = dict(listed)
         if name not in periods:
             raise ConfigError(f'graph.condition = {self.graph.condition!r} has no {name} '
                               f'module (it runs {", ".join(periods)})')
-        arena = self.arena()
+        arena = load_arena(self.graph.arena_file or None)
         module = make_module(self.clis, name, periods[name], *arena_map(arena))
         # the tick dt comes with each start event (config/sim.yaml's until then)
         self.core = ModuleSchedule(

@@ -34,15 +34,15 @@ import math
 import signal
 import time
 
+from clis_base.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from clis_base.ros.process import reraise_unless_shut_down
+from clis_base.ros.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.core.arena import load_arena
 from cr_sim.core.episodes import Event
 from cr_sim.core.gate import EpisodeGate
-from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.robot import clamp_wheels, integrate_arc, robot_defaults, wheels_to_twist
 from cr_sim.core.sim import IGNORED_SECTIONS, SimParams
 from cr_sim.interface import open_robot_interface
-from cr_sim.ros_support.lifecycle import reraise_unless_shut_down
-from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor

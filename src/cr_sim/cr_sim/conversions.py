@@ -30,6 +30,7 @@ from collections.abc import Iterable, Mapping, Sequence
 import math
 
 from builtin_interfaces.msg import Time
+from clis_base.ros.qos import STREAM_DEPTH  # noqa: F401 - the interface streams' depth
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Twist, TwistStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
@@ -41,12 +42,6 @@ from visualization_msgs.msg import Marker, MarkerArray
 from cr_sim.core.robot import twist_to_wheels, wheels_to_twist
 
 WHEEL_NAMES = ('left_wheel', 'right_wheel')
-#: History depth (reliable, keep-last) of every stream of the robot interface and of the CLIS
-#: graph, at the publisher and at the subscribers that must see every message (the learner,
-#: the place module's odometry): a reader that falls this many messages behind the publisher
-#: (a loaded machine, a recorder, ``ros2 topic echo``) still loses none. With depth 10 the
-#: learner lost rewards and the place module wheel readings when a core was busy elsewhere.
-STREAM_DEPTH = 1000
 EPISODE_STATUS = 'episode'
 
 

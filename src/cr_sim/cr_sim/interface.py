@@ -7,18 +7,19 @@ they are declared.
 
 from __future__ import annotations
 
+from clis_base.params import ConfigError
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 
 from cr_sim import conversions as conv
 from cr_sim.core.arena import Arena
-from cr_sim.core.params import ConfigError
 
 __all__ = ['open_robot_interface', 'parse_counts', 'unmatched']
 
 
 def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamped: bool,
-                         wait_for_learner: bool, command: str = 'cmd_vel') -> None:
+                         wait_for_learner: bool, command: str = 'cmd_vel', *,
+                         publish_clock: bool = True, publish_camera: bool = True) -> None:
     """Create the interface's publishers on ``node`` (``node.pub_clock``, ``pub_ir``,
     ``pub_ir_ranges``, ``pub_camera``, ``pub_wheels``, ``pub_reward``, ``pub_episode``,
     ``pub_odom``, ``pub_arena``, ``pub_markers``), subscribe the ``command`` topic (``cmd_vel``, or
@@ -28,10 +29,11 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
     (latched) in ``map_frame``."""
     from std_srvs.srv import Trigger
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    node.pub_clock = node.create_publisher(conv.Clock, '/clock', 10)
+    node.pub_clock = node.create_publisher(conv.Clock, '/clock', 10) if publish_clock else None
     node.pub_ir = node.create_publisher(conv.LaserScan, 'ir', conv.STREAM_DEPTH)
     node.pub_ir_ranges = node.create_publisher(conv.JointState, 'ir_ranges', conv.STREAM_DEPTH)
-    node.pub_camera = node.create_publisher(conv.JointState, 'camera', conv.STREAM_DEPTH)
+    node.pub_camera = (node.create_publisher(conv.JointState, 'camera', conv.STREAM_DEPTH)
+                       if publish_camera else None)
     node.pub_wheels = node.create_publisher(conv.JointState, 'wheels', conv.STREAM_DEPTH)
     node.pub_reward = node.create_publisher(conv.Vector3Stamped, 'reward', conv.STREAM_DEPTH)
     node.pub_episode = node.create_publisher(
@@ -57,10 +59,11 @@ def open_robot_interface(node: Node, arena: Arena, map_frame: str, cmd_vel_stamp
 
 
 def _on_progress(node: Node, msg) -> None:
-    """The learner's progress (episode learned, parameters' version) to the node's gate."""
+    """The learner's progress (episode learned, parameters' version, what the next start is
+    to carry) to the node's gate."""
     _, _, values = conv.event_from_msg(msg)
     try:
-        node.gate.on_progress(int(values['episode']), int(values['version']))
+        node.gate.on_progress(int(values['episode']), int(values['version']), values)
     except (KeyError, ValueError):
         node.get_logger().warning(f'unreadable learner progress: {values}')
 

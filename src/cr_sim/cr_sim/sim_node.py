@@ -24,6 +24,19 @@ from __future__ import annotations
 
 import time
 
+from clis_base.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from clis_base.ros.executor import make_executor
+from clis_base.ros.process import (
+    SHUTDOWN_RACES,
+    realtime_logged,
+    reraise_unless_shut_down,
+    settle_heap,
+)
+from clis_base.ros.profiling import start_profile, stop_profile
+from clis_base.ros.rclpy_private import supported as rp_supported
+from clis_base.ros.ros_params import declare_from_config, print_help_and_exit_if_asked
+from clis_base.trace import dump as dump_trace
+from clis_base.trace import mark
 import numpy as np
 import rclpy
 from rclpy.exceptions import InvalidHandle
@@ -34,23 +47,11 @@ from cr_sim import conversions as conv
 from cr_sim.core.arena import load_arena
 from cr_sim.core.episodes import Event
 from cr_sim.core.gate import EpisodeGate
-from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
 from cr_sim.core.robot import robot_defaults
 from cr_sim.core.sim import SimParams
 from cr_sim.core.sim_episodes import READINGS, SimEpisodes
 from cr_sim.interface import open_robot_interface, parse_counts, unmatched
-from cr_sim.ros_support.executor import make_executor
-from cr_sim.ros_support.lifecycle import (
-    SHUTDOWN_RACES,
-    realtime_logged,
-    reraise_unless_shut_down,
-    settle_heap,
-)
-from cr_sim.ros_support.profiling import start_profile, stop_profile
-from cr_sim.ros_support.rclpy_private import supported as rp_supported
-from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
-from cr_sim.ros_support.trace import dump as dump_trace
-from cr_sim.ros_support.trace import mark
+from cr_sim.standard_topics import StandardTopics
 
 START_CHOICES = ('A', 'B', 'C', 'D', 'E', 'random', 'wander', 'starts')
 #: Between the instants a lockstep holds at, callbacks (a reset, a command) are served every
@@ -90,8 +91,10 @@ class SimNodeParams:
                                                 "controller's decision periods); 0 = every tick")
     map_frame: str = param(doc='fixed frame of odom and markers')
     base_frame: str = param(doc='robot body frame')
+    standard_topics: bool = param(doc="also publish the sensors as a robot's standard topics "
+                                  "(image_raw, scan) while someone subscribes to them")
     executor: str = param(choices=('lean', 'single'), doc="rclpy executor: 'lean' "
-                          "(cr_sim.ros_support.executor.LeanExecutor) or 'single' "
+                          "(clis_base.ros.executor.LeanExecutor) or 'single' "
                           '(SingleThreadedExecutor)')
     realtime_priority: int = param(0, 99, doc='SCHED_FIFO priority of the node (every thread); '
                                    '0 = default scheduling; > 0 also holds the CPU wake-up '
@@ -107,11 +110,6 @@ class SimNodeParams:
                           "(their noise drawn) and published at every tick; 'instants': only "
                           'at the decision instants of lockstep_periods, as the headless '
                           'runner reads them (the wheels and the clock at every tick)')
-    agent_selection: str = param(choices=('', 'episode', 'decision'), doc="'' or the "
-                                 "arbiter's selection mode: the node then keeps the agent "
-                                 'stream (seed, 2) of the headless runner over the decision '
-                                 'instants of lockstep_periods and announces its state at '
-                                 'each start (agent_state)')
     round_trip_log: str = param(doc="lockstep: append 'sim_time round_trip_ms' of every held "
                                 "instant to this file ('' = none); p50/p99 are logged at exit")
 
@@ -137,8 +135,7 @@ class SimNode(Node):
             self.arena, self.params, self.gate, seed=cfg.seed, start=cfg.start,
             first_episode=cfg.first_episode, resume_state=cfg.resume_state,
             auto_reset=cfg.auto_reset, watchdog=cfg.watchdog,
-            decision_periods=cfg.lockstep_periods, readings=cfg.readings,
-            agent_selection=cfg.agent_selection)
+            decision_periods=cfg.lockstep_periods, readings=cfg.readings)
         self.sim = self.core.sim
         self.wheel_base = self.params.robot.wheel_base
         self.next_marker_t = 0.0
@@ -147,6 +144,9 @@ class SimNode(Node):
         open_robot_interface(self, self.arena, cfg.map_frame, cfg.cmd_vel_stamped,
                              cfg.wait_for_learner, cfg.command)
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
+        # a robot's standard topics (image_raw, scan), built only while someone subscribes
+        self.standard = (StandardTopics(self, self.arena, 'cr', sensors=self.params.sensors,
+                                        frame=cfg.base_frame) if cfg.standard_topics else None)
         self.ir_angles = np.deg2rad(self.params.sensors.ir_angles_deg)
         try:
             self.start_subscribers = parse_counts(cfg.start_subscribers,
@@ -241,6 +241,8 @@ class SimNode(Node):
             (self.pub_ir_ranges, conv.ir_ranges_msg(obs.ir, t, frame)),
             (self.pub_camera, conv.bearings_msg(
                 self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame))]
+        if obs is not None and self.standard is not None:
+            self._last += self.standard.messages(t, self.sim.pose, obs.ir)
         self._last.append((self.pub_wheels, conv.wheels_msg(wheels, t, frame)))
         # display only (ground truth, never a module input): built only for a subscriber
         if self.pub_odom.get_subscription_count():
@@ -276,7 +278,7 @@ class CommandWait:
     """
 
     def __init__(self, node: SimNode) -> None:
-        from cr_sim.ros_support.rclpy_private import new_wait_set
+        from clis_base.ros.rclpy_private import new_wait_set
         self.node = node
         self.sub = node.sub_cmd
         self.wait_set = new_wait_set((1, 0, 0, 0, 0, 0), node.context.handle)

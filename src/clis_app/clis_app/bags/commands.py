@@ -6,7 +6,7 @@ records a run with the ``recorder`` node (:mod:`clis_app.bags.recorder_node`); `
 runs that node on its own. ``clis replay`` republishes a bag with its recorded timing and QoS
 (:mod:`clis_app.bags.replay`). ``clis learn`` trains the modules from the episodes of bags
 through the learner node's own path: the messages decoded by the same conversions, fed in
-recorded order into the same :class:`~clis_learner.core.stream.EpisodeStream` (stream buffer,
+recorded order into the same :class:`~clis_learner.core.intake.EpisodeStream` (stream buffer,
 episode memory, :class:`~clis_learner.core.learner.Learner`); the checkpoint it writes is what
 ``clis run --resume`` takes, and a bag of a ``clis run`` gives that run's parameters.
 
@@ -133,11 +133,11 @@ def _replay(args: argparse.Namespace) -> int:
 
 def feed_stream(stream: Any, messages: Iterable[Any], namespace: str = '/') -> Iterator[Any]:
     """Feed a bag's messages (:class:`~clis_app.bags.mcap.BagMessage`, recorded order) to an
-    :class:`~clis_learner.core.stream.EpisodeStream` through the learner node's routing
-    (:mod:`clis_learner.stream_topics`); yield each closed episode
-    (:class:`~clis_learner.core.stream.Closed`). An episode that ended is closed at the next
+    :class:`~clis_learner.core.intake.EpisodeStream` through the learner node's routing
+    (:mod:`clis_learner.intake_topics`); yield each closed episode
+    (:class:`~clis_learner.core.intake.Closed`). An episode that ended is closed at the next
     start or at the end of the messages (all its records are in by then)."""
-    from clis_learner.stream_topics import EPISODE, feed_episode, feed_record, record_topics
+    from clis_learner.intake_topics import EPISODE, feed_episode, feed_record, record_topics
     from rclpy.serialization import deserialize_message
 
     routes = {topic: (kind, msg_type)
@@ -184,6 +184,7 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
     'condition': ..., 'damaged': [messages]}``. Raises ValueError (bad input) or
     :class:`~clis_app.bags.mcap.BagError` (a bag that cannot be opened).
     """
+    from clis_base.params import config_dir, ros_parameters
     from clis_learner.core.checkpoint import load_checkpoint, save_checkpoint
     from clis_learner.core.config import (
         DEFAULT_PRESET,
@@ -193,11 +194,10 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
         params_hash,
         preset_overrides,
     )
-    from clis_learner.core.stream import EpisodeStream
+    from clis_learner.core.intake import EpisodeStream
     from clis_modules.core.modules import arena_map, make_modules
     from clis_modules.core.plugin import parse_condition
     from cr_sim.core.arena import load_arena
-    from cr_sim.core.params import config_dir, ros_parameters
 
     from clis_app.bags.mcap import BagError, BagReader, bag_info
 
@@ -269,8 +269,8 @@ def learn_bags(bags: list[Path], out: Path, condition: str | None = None,
 
 
 def _learn(args: argparse.Namespace) -> int:
+    from clis_base.params import ConfigError
     from clis_learner.core.checkpoint import CheckpointError
-    from cr_sim.core.params import ConfigError
 
     from clis_app.bags.mcap import BagError
     for b in args.bags:

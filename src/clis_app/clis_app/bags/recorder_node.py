@@ -29,9 +29,10 @@ from pathlib import Path
 import time
 from typing import Any
 
+from clis_base.params import ConfigError, dataclass, param
+from clis_base.ros.graph_node import GraphNode, run_node
 from clis_learner.core.config import ClisParams, params_hash
-from clis_modules.graph_node import GraphNode, run_node
-from cr_sim.core.params import ConfigError, dataclass, param
+from clis_modules.core.plugin import parse_condition
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidHandle
@@ -78,7 +79,6 @@ def graph_topics(condition: str, clis: Any) -> dict[str, str]:
     """:data:`GRAPH_TOPICS` with the topics of ``condition``'s module instances, in its order
     (``proposal``, ``params``, ``observation`` when there are several, and what each plug-in
     declares in its ``topics``)."""
-    from clis_modules.core.plugin import parse_condition
     topics = dict(GRAPH_TOPICS)
     modules = parse_condition(condition).modules
     for name in modules:
@@ -92,7 +92,6 @@ def graph_topics(condition: str, clis: Any) -> dict[str, str]:
 
 def latched_topics(condition: str) -> frozenset:
     """:data:`LATCHED_TOPICS` with the ``params`` of ``condition``'s module instances."""
-    from clis_modules.core.plugin import parse_condition
     return LATCHED_TOPICS | {f'{name}/params' for name in parse_condition(condition).modules}
 
 
@@ -173,7 +172,8 @@ class RecorderNode(GraphNode):
     control_path = False                    # records: never real-time
 
     def __init__(self) -> None:
-        super().__init__('recorder', 'recorder', RecorderParams, clis_cls=ClisParams)
+        super().__init__('recorder', 'recorder', RecorderParams, clis_cls=ClisParams,
+                         check_condition=parse_condition)
         path = Path(self.cfg.path or f'bags/record-{time.strftime("%Y%m%d-%H%M%S")}')
         path = self._free_path(path)
         custom = {'condition': self.graph.condition, 'seed': str(self.graph.seed),

@@ -116,7 +116,7 @@ def run_ray(todo: list[JobSpec], workers: int, address: str | None,
 
     Parameters
     ----------
-    progress : clis_app.experiments.experiment.Progress
+    progress : clis_app.experiments.pool.Progress
         Gets ``update(job, episodes, note)`` and ``finish(job, episodes, note)``.
     on_start : callable, optional
         Called with the ``ray`` module once it is initialised (tests).

@@ -94,7 +94,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     """The nodes of ``condition``, with the parameters ``clis run`` gives each;
     ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
     ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
-    :func:`cr_sim.ros_support.lifecycle.realtime`); ``first_episode`` > 1: the number of
+    :func:`clis_base.ros.process.realtime`); ``first_episode`` > 1: the number of
     the simulator's first episode (a resumed run), ``resume_state``: where its robot and clock
     stood (the checkpoint's ``sim_state``); ``learn_until`` > 0: the learner learns no
     episode that starts once that many are learned in all (``learner_node.episodes``);
@@ -151,8 +151,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         'node.command': 'wheels_cmd',
         'node.start': 'wander', 'node.auto_reset': True, 'node.wait_for_learner': True,
         'node.lockstep': True, 'node.lockstep_periods': [float(tau) for _, tau in periods],
-        # the headless runner's readings and agent stream (docs/design.md §6)
-        'node.readings': 'instants', 'node.agent_selection': clis.arbiter.selection,
+        # the headless runner's readings (docs/design.md §6)
+        'node.readings': 'instants',
         **({'node.first_episode': first_episode} if first_episode > 1 else {}),
         **({'node.resume_state': resume_state} if resume_state else {}),
         **priority('node.realtime_priority', 'sim')},

@@ -19,7 +19,7 @@ from pathlib import Path
 import secrets
 import tempfile
 
-from cr_sim.core.params import config_dir
+from clis_base.params import config_dir
 
 PROFILE_VAR = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 PROFILE_NAME = 'fastdds_loopback.xml'

@@ -211,9 +211,9 @@ def _check_args(args: argparse.Namespace) -> str | None:
     for opt, path in (('--out', args.out), ('--record', args.record)):
         if path is not None and path.exists() and not path.is_dir():
             return f'{opt} {path}: exists and is not a folder'
+    from clis_base.params import ConfigError
     from clis_learner.core.config import check_params_file, load_clis_params
     from cr_sim.core.arena import load_arena
-    from cr_sim.core.params import ConfigError
     try:
         arena = load_arena(args.arena or None)
     except (ConfigError, OSError) as exc:
@@ -267,13 +267,7 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
     ``robot.yaml``), checked as
     each node will (the CLIS keys are checked by the config loader): ConfigError naming the
     key and its range."""
-    from clis_learner.learner_node import LearnerNodeParams
-    from clis_modules.arbiter_node import ArbiterNodeParams
-    from clis_modules.graph_node import GraphParams
-    from clis_modules.module_node import ModuleNodeParams
-    from cr_bridge.bridge_node import BridgeNodeParams
-    from cr_bridge.core.episode import ContactParams
-    from cr_sim.core.params import (
+    from clis_base.params import (
         ConfigError,
         build,
         config_dir,
@@ -281,6 +275,12 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
         ros_parameters,
         unflatten,
     )
+    from clis_base.ros.graph_node import GraphParams
+    from clis_learner.learner_node import LearnerNodeParams
+    from clis_modules.arbiter_node import ArbiterNodeParams
+    from clis_modules.module_node import ModuleNodeParams
+    from cr_bridge.bridge_node import BridgeNodeParams
+    from cr_bridge.core.episode import ContactParams
     from cr_sim.core.robot import robot_defaults
     from cr_sim.core.sim import IGNORED_SECTIONS, load_sim_params
     from cr_sim.sim_node import SimNodeParams
@@ -315,8 +315,8 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
 
 
 def _clis_keys() -> set[str]:
+    from clis_base.params import config_dir, flatten, ros_parameters
     from clis_learner.core.config import CLIS_NODE
-    from cr_sim.core.params import config_dir, flatten, ros_parameters
     return set(flatten(ros_parameters(config_dir() / 'clis.yaml', CLIS_NODE)))
 
 

@@ -19,13 +19,13 @@ __all__ = ['run_single']
 def run_single(plan, args: argparse.Namespace, out: Path, say) -> int:
     """Run ``plan`` (a :class:`clis_app.graph.plan.GraphPlan`) in this process; an exit
     code."""
+    from clis_base.params import ConfigError
+    from clis_base.ros.executor import make_executor
+    from clis_base.ros.process import realtime, settle_heap
+    from clis_base.trace import dump as dump_trace
     from clis_learner.learner_node import LearnerNode
     from clis_modules.arbiter_node import ArbiterNode
     from clis_modules.module_node import ModuleNode
-    from cr_sim.core.params import ConfigError
-    from cr_sim.ros_support.executor import make_executor
-    from cr_sim.ros_support.lifecycle import realtime, settle_heap
-    from cr_sim.ros_support.trace import dump as dump_trace
     from cr_sim.sim_node import SimNode, run
     import rclpy
     from rclpy.clock import Clock, ClockType

@@ -60,10 +60,12 @@ import json
 import time
 from typing import Any
 
-from clis_modules.graph_node import GraphNode, OnDemand, run_node
-from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.ros_support.rclpy_private import parameter_overrides
-from cr_sim.ros_support.ros_params import declare_from_config
+from clis_base.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from clis_base.ros.graph_node import GraphNode, OnDemand, run_node
+from clis_base.ros.rclpy_private import parameter_overrides
+from clis_base.ros.ros_params import declare_from_config
+from clis_modules.core.modules import ModuleSetParams
+from clis_modules.core.plugin import parse_condition
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry, Path
@@ -131,7 +133,8 @@ class FoxgloveNode(GraphNode):
     control_path = False                    # a viewer: never real-time
 
     def __init__(self) -> None:
-        super().__init__('foxglove')        # the modules' clis.yaml sections (no scipy)
+        super().__init__('foxglove', clis_cls=ModuleSetParams,  # the modules' sections (no scipy)
+                         check_condition=parse_condition)
         if 'use_sim_time' not in parameter_overrides(self):
             # wall time only (timers, log times): no /clock reader of its own, one less for the
             # simulator to deliver to (/clock is subscribed to as a channel while shown)
@@ -150,7 +153,6 @@ class FoxgloveNode(GraphNode):
         #: decimated topic -> wall time (monotonic) of its next take; its gap between takes
         self.due: dict[str, float] = {}
         self.gap = 1.0 / self.cfg.max_rate if self.cfg.max_rate > 0 else 0.0
-        from clis_modules.core.plugin import parse_condition
         proposals = [f'{m}/proposal' for m in parse_condition(self.graph.condition).modules]
         self.decimated = frozenset(self.resolve_topic_name(t.strip()) for t in [
             *self.cfg.decimated.split(','), *proposals] if t.strip()) if self.gap else frozenset()

@@ -161,7 +161,7 @@ def _params_hash(run: Run, cache: dict[str, str]) -> str:
 
 def _make_progress(todo_runs: list[Run], specs: list, out: Path, hidden: dict[str, float],
                    quiet: bool) -> Any:
-    from clis_app.experiments.experiment import Progress
+    from clis_app.experiments.pool import Progress
 
     class StudyProgress(Progress):
         """The experiment's progress line; each finished run's summary is written first."""
@@ -171,7 +171,7 @@ def _make_progress(todo_runs: list[Run], specs: list, out: Path, hidden: dict[st
             _store(run, specs[job], out, hidden[run.arena])
             super().finish(job, episodes, f'{run.label} s{run.seed} done')
 
-    from clis_app.experiments.experiment import job_costs
+    from clis_app.experiments.pool import job_costs
     return StudyProgress(total_episodes=sum(s.episodes for s in specs), runs=len(specs),
                          quiet=quiet, cost=job_costs(specs))
 
@@ -281,7 +281,7 @@ def main(args: argparse.Namespace) -> int:
                 _store(r, s, out, hidden[r.arena])
                 continue
         left.append((r, s))
-    from clis_app.experiments.experiment import longest_first
+    from clis_app.experiments.pool import longest_first
     order = {id(s): k for k, (_, s) in enumerate(left)}
     ordered = longest_first([s for _, s in left])
     todo_runs = [left[order[id(s)]][0] for s in ordered]
@@ -302,7 +302,7 @@ def main(args: argparse.Namespace) -> int:
             except ConnectionError as exc:
                 return _fail(f'cannot reach the Ray cluster at {args.address}: {exc}', 1)
         else:
-            from clis_app.experiments.experiment import _run_all
+            from clis_app.experiments.pool import _run_all
             _run_all(ordered, args.workers, args.quiet, progress)
         if not args.quiet:
             print(file=sys.stderr)
@@ -318,14 +318,14 @@ def main(args: argparse.Namespace) -> int:
 
 
 #: CPU seconds of 1000 learning episodes of Innate alone (docs/benchmarks.md: 7 CPU-s); the
-#: other conditions cost :data:`clis_app.experiments.experiment._COST` times that.
+#: other conditions cost :data:`clis_app.experiments.pool._COST` times that.
 _INNATE_CPU_S = 7.0
 
 
 def cpu_hours(runs: list[Run]) -> float:
     """A rough estimate of the CPU time of ``runs`` [h]: the benchmarks' cost per learning
     episode of each condition, an evaluation episode counted as a learning one."""
-    from clis_app.experiments.experiment import _cost
+    from clis_app.experiments.pool import _cost
     total = 0.0
     for r in runs:
         episodes, every = r.setting('episodes'), r.setting('eval_every')

@@ -3,7 +3,7 @@
 Sections: ``common`` (gamma, base tick, beta, epsilon, speed limit), ``innate``, ``view``,
 ``place`` (:mod:`clis_modules.core.modules`), ``arbiter`` (:mod:`clis_modules.core.arbiter`),
 ``learner`` (here). Every value is range-checked at load; a bad one raises
-:class:`~cr_sim.core.params.ConfigError` naming the file and the dotted key.
+:class:`~clis_base.params.ConfigError` naming the file and the dotted key.
 """
 
 from __future__ import annotations
@@ -15,19 +15,21 @@ import os
 from pathlib import Path
 from typing import Any
 
-from clis_modules.core.modules import ModuleSetParams
-from cr_sim.core.params import (
+from clis_base.params import (
     ConfigError,
     config_dir,
     dataclass,
     flatten,
     identity_dict,
+    is_ros_key,
     load_params,
     load_yaml,
     param,
+    project_keys,
     ros_parameters,
+    unknown_key,
 )
-from cr_sim.ros_support.ros_params import is_ros_key, project_keys, unknown_key
+from clis_modules.core.modules import ModuleSetParams
 
 from clis_learner.core.corrections import BEHAVIOUR_STATES, BEHAVIOURS, CORRECTIONS
 from clis_learner.core.resample import RESAMPLE_METHODS
@@ -221,7 +223,7 @@ def check_params_file(path: str | os.PathLike) -> dict[str, Any]:
     """Check a ROS 2 parameter file a user gives every node (``clis run --params FILE``).
 
     Every key must be one that a node of the project declares (:func:`check_overrides`
-    against :func:`cr_sim.ros_support.ros_params.project_keys`), and the CLIS keys
+    against :func:`clis_base.params.project_keys`), and the CLIS keys
     (``config/clis.yaml``) must hold allowed values (:func:`load_clis_params`); the nodes check
     the others' values at start.
 

@@ -47,7 +47,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass as plain_dataclass
 import math
 
-from cr_sim.core.params import ConfigError, dataclass, param
+from clis_base.params import ConfigError, dataclass, param
 import numpy as np
 from numpy.typing import ArrayLike
 

@@ -23,6 +23,11 @@ Model
   ``camera.bearing_of_column``. Angular width: the angle between the blob's outer column
   edges, ``|bearing(u_min - 0.5) - bearing(u_max + 0.5)|``; on a strip, the columns spanned
   times ``2 pi / W``.
+* Box: the rows and columns the blob spans (:attr:`Blob.box`), for drawing it
+  (:func:`draw_boxes`, in each target's display colour :meth:`ColourRange.rgb`).
+
+A frame of another size than the camera model's nominal one (a camera whose ``camera_info``
+gives its intrinsics, a strip of another width) is read with :func:`camera_for_frame`.
 """
 
 from __future__ import annotations
@@ -31,13 +36,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 import math
 
-from cr_sim.core.camera import CameraModel
+from cr_sim.core.camera import CameraModel, Panoramic, Pinhole
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import ndimage
 
 __all__ = [
-    'ENCODINGS', 'ColourRange', 'NAMED_RANGES', 'BlobParams', 'Blob', 'hsv', 'detect',
-    'bearings',
+    'ENCODINGS', 'ColourRange', 'NAMED_RANGES', 'BlobParams', 'Blob', 'check_encoding', 'hsv',
+    'to_rgb', 'detect', 'bearings', 'widths', 'draw_boxes', 'camera_for_frame',
 ]
 
 #: Accepted image encodings (sensor_msgs/Image names) and their channel count.
@@ -101,6 +107,16 @@ class ColourRange:
         return (hue & (s >= self.sat_lo) & (s <= self.sat_hi) & (v >= self.val_lo)
                 & (v <= self.val_hi))
 
+    def rgb(self) -> tuple[int, int, int]:
+        """The display colour of the range: the hue in the middle of ``[hue_lo, hue_hi]``
+        (through 0 when it wraps), full saturation and value, as 8-bit RGB."""
+        span = (self.hue_hi - self.hue_lo) % 360.0 if self.hue_lo > self.hue_hi \
+            else self.hue_hi - self.hue_lo
+        h6 = ((self.hue_lo + 0.5 * span) % 360.0) / 60.0
+        x = 1.0 - abs(h6 % 2.0 - 1.0)
+        r, g, b = ((1, x, 0), (x, 1, 0), (0, 1, x), (0, x, 1), (x, 0, 1), (1, 0, x))[int(h6) % 6]
+        return (round(255 * r), round(255 * g), round(255 * b))
+
 
 #: A range per colour name of an arena file (hues of :data:`cr_sim.core.render.COLOURS`).
 NAMED_RANGES: dict[str, ColourRange] = {
@@ -160,6 +176,10 @@ class Blob:
         Angular width [rad]; NaN when not seen.
     column : float
         Column centroid [px], in [-0.5, W - 0.5) on a strip; NaN when not seen.
+    box : tuple of 4 int, or None
+        ``(top, bottom, left, right)``: the first and last row and the first and last column
+        of the blob's pixels, inclusive; on a strip the columns run from ``left`` rightwards
+        to ``right``, across the seam when ``left > right``. None when not seen.
     """
 
     seen: bool
@@ -167,6 +187,31 @@ class Blob:
     area: int
     width: float
     column: float
+    box: tuple[int, int, int, int] | None = None
+
+
+def check_encoding(encoding: str) -> int:
+    """The channel count of ``encoding``.
+
+    Raises
+    ------
+    ValueError
+        One line naming the encoding and the supported ones (:data:`ENCODINGS`).
+    """
+    if encoding not in ENCODINGS:
+        raise ValueError(f'image encoding {encoding!r} is not supported: use one of '
+                         + ', '.join(repr(e) for e in ENCODINGS))
+    return ENCODINGS[encoding]
+
+
+def _checked(image: np.ndarray, encoding: str) -> np.ndarray:
+    """``image`` as an array, after checking its encoding, dtype and shape."""
+    n = check_encoding(encoding)
+    a = np.asarray(image)
+    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != n:
+        raise ValueError(f'a {encoding} image is uint8 of shape (H, W, {n}), got {a.dtype} '
+                         f'of shape {a.shape}')
+    return a
 
 
 def hsv(image: np.ndarray, encoding: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -188,14 +233,7 @@ def hsv(image: np.ndarray, encoding: str) -> tuple[np.ndarray, np.ndarray, np.nd
     ValueError
         An encoding not in :data:`ENCODINGS`, or an image of another shape or dtype.
     """
-    if encoding not in ENCODINGS:
-        raise ValueError(f'image encoding {encoding!r} is not supported: use one of '
-                         + ', '.join(repr(e) for e in ENCODINGS))
-    a = np.asarray(image)
-    n = ENCODINGS[encoding]
-    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != n:
-        raise ValueError(f'a {encoding} image is uint8 of shape (H, W, {n}), got {a.dtype} '
-                         f'of shape {a.shape}')
+    a = _checked(image, encoding)
     i_r, i_b = (2, 0) if encoding == 'bgr8' else (0, 2)
     r, g, b = (a[..., i].astype(np.float64) * (1.0 / 255.0) for i in (i_r, 1, i_b))
     v = np.maximum(np.maximum(r, g), b)
@@ -208,6 +246,31 @@ def hsv(image: np.ndarray, encoding: str) -> tuple[np.ndarray, np.ndarray, np.nd
     h = np.where(c > 0.0, 60.0 * h, 0.0)
     h[h >= 360.0] = 0.0
     return h, s, v
+
+
+def to_rgb(image: np.ndarray, encoding: str) -> np.ndarray:
+    """The image in RGB order, without alpha.
+
+    Parameters
+    ----------
+    image : np.ndarray, shape (H, W, 3) or (H, W, 4), uint8
+        In ``encoding`` (one of :data:`ENCODINGS`).
+    encoding : str
+
+    Returns
+    -------
+    np.ndarray, shape (H, W, 3), uint8
+        A new array (the input is never written to).
+
+    Raises
+    ------
+    ValueError
+        As :func:`hsv`.
+    """
+    a = _checked(image, encoding)
+    if encoding == 'bgr8':
+        return np.ascontiguousarray(a[..., ::-1])
+    return np.array(a[..., :3])
 
 
 def _merge_seam(labels: np.ndarray, n: int) -> np.ndarray:
@@ -288,7 +351,8 @@ def detect(image: np.ndarray, encoding: str, camera: CameraModel, params: BlobPa
         if area[best] < params.min_area:
             out[name] = Blob(False, math.nan, int(area[best]), math.nan, math.nan)
             continue
-        cols = np.nonzero(labels == best)[1].astype(np.float64)
+        rows, cols = np.nonzero(labels == best)
+        cols = cols.astype(np.float64)
         if camera.wraps:
             cols = _columns_unwrapped(cols, camera.width)
             u = float(np.mean(cols))
@@ -298,8 +362,10 @@ def detect(image: np.ndarray, encoding: str, camera: CameraModel, params: BlobPa
             u = float(np.mean(cols))
             edges = camera.bearing_of_column(np.array((cols.min() - 0.5, cols.max() + 0.5)))
             width = abs(float(edges[0] - edges[1]))
+        box = (int(rows.min()), int(rows.max()), int(cols.min()) % camera.width,
+               int(cols.max()) % camera.width)
         out[name] = Blob(True, float(camera.bearing_of_column(u)), int(area[best]),
-                         float(width), u)
+                         float(width), u, box)
     return out
 
 
@@ -320,3 +386,102 @@ def bearings(blobs: Mapping[str, Blob], names: tuple[str, ...] | list[str]) -> n
     """
     return np.array([blobs[n].bearing if n in blobs else math.nan for n in names],
                     dtype=np.float64)
+
+
+def widths(blobs: Mapping[str, Blob], names: tuple[str, ...] | list[str]) -> np.ndarray:
+    """The apparent angular widths of ``names`` in that order (:attr:`Blob.width`).
+
+    Parameters
+    ----------
+    blobs : Mapping of str to Blob
+        From :func:`detect`.
+    names : sequence of str, length T
+
+    Returns
+    -------
+    np.ndarray, shape (T,)
+        Angular width [rad], NaN = not seen.
+    """
+    return np.array([blobs[n].width if n in blobs else math.nan for n in names],
+                    dtype=np.float64)
+
+
+def draw_boxes(rgb: np.ndarray, blobs: Mapping[str, Blob],
+               colours: Mapping[str, tuple[int, int, int]], wraps: bool = False) -> np.ndarray:
+    """The image with a one-pixel rectangle round each seen blob, one pixel outside its
+    :attr:`Blob.box`, in its target's colour.
+
+    Parameters
+    ----------
+    rgb : np.ndarray, shape (H, W, 3), uint8
+        Not written to.
+    blobs : Mapping of str to Blob
+        From :func:`detect` on this image.
+    colours : Mapping of str to (int, int, int)
+        RGB of each target's rectangle (e.g. :meth:`ColourRange.rgb`); a target missing here
+        is drawn in white.
+    wraps : bool
+        The image is a strip closing on itself (``camera.wraps``): a rectangle crosses the
+        seam when its blob does.
+
+    Returns
+    -------
+    np.ndarray, shape (H, W, 3), uint8
+        A copy with the rectangles drawn; a rectangle reaching past an edge is cut there.
+    """
+    out = np.array(rgb, dtype=np.uint8)
+    n_rows, n_cols = out.shape[:2]
+    for name, blob in blobs.items():
+        if not blob.seen or blob.box is None:
+            continue
+        top, bottom, left, right = blob.box
+        colour = np.asarray(colours.get(name, (255, 255, 255)), dtype=np.uint8)
+        r0, r1 = max(top - 1, 0), min(bottom + 1, n_rows - 1)
+        if wraps:
+            span = min((right - left) % n_cols + 3, n_cols)
+            cols = (left - 1 + np.arange(span)) % n_cols
+        else:
+            cols = np.arange(max(left - 1, 0), min(right + 1, n_cols - 1) + 1)
+        out[r0, cols] = colour
+        out[r1, cols] = colour
+        out[r0:r1 + 1, cols[0]] = colour
+        out[r0:r1 + 1, cols[-1]] = colour
+    return out
+
+
+def camera_for_frame(nominal: CameraModel, width: int, height: int,
+                     k: ArrayLike | None = None) -> CameraModel:
+    """The model of a frame of ``width`` x ``height`` from the camera ``nominal`` describes.
+
+    Parameters
+    ----------
+    nominal : Pinhole or Panoramic
+        The camera as described without calibration (a robot profile's field of view).
+    width, height : int
+        The frame's size [px].
+    k : array_like, shape (9,) or (3, 3), optional
+        A pinhole's intrinsic matrix for this size (sensor_msgs/CameraInfo ``k``); ignored
+        for a panoramic strip.
+
+    Returns
+    -------
+    Pinhole or Panoramic
+        ``nominal`` itself for its own size and no ``k``; with ``k``,
+        ``Pinhole.from_k(width, height, k, nominal.yaw)``; a pinhole of another size, the
+        nominal field of view over it; a strip of another size, the full turn over its
+        ``width`` columns (the nominal ``bearing0`` and direction, the middle row as horizon).
+
+    Raises
+    ------
+    ValueError
+        A size or a ``k`` the models reject, naming the field and its range.
+    """
+    if isinstance(nominal, Panoramic):
+        if (width, height) == (nominal.width, nominal.height):
+            return nominal
+        return Panoramic(width, height, nominal.bearing0, nominal.clockwise)
+    if k is not None:
+        return Pinhole.from_k(width, height, k, nominal.yaw)
+    if (width, height) == (nominal.width, nominal.height):
+        return nominal
+    return Pinhole.from_fov(width, height, nominal.hfov, nominal.yaw)

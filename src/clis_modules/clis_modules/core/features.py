@@ -24,9 +24,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 import math
 
+from clis_base.ufunc_loops import LOOPS, exp_into, pairwise_sum
 from cr_sim.core.geometry import TWO_PI, wrap_angles
 from cr_sim.core.kernels import njit
-from cr_sim.core.ufunc_loops import LOOPS, exp_into, pairwise_sum
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -180,7 +180,7 @@ def _rbf_into(x: np.ndarray, centers: np.ndarray, sizes: np.ndarray, phi: np.nda
               periodic: np.ndarray, normalize: bool, q: np.ndarray, loops: np.ndarray,
               b: np.ndarray) -> None:
     """``b[:-1]`` <- the RBFs of one input: :func:`_rbf_exponents` into ``q``, then
-    ``exp(-q)`` (numpy's loop: :func:`cr_sim.core.ufunc_loops.exp_into`), then
+    ``exp(-q)`` (numpy's loop: :func:`clis_base.ufunc_loops.exp_into`), then
     :func:`_rbf_products`."""
     _rbf_exponents(x, centers, sizes, phi, periodic, normalize, q)
     n = q.shape[0]

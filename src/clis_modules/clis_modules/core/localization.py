@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from cr_sim.core.params import dataclass, param
+from clis_base.params import dataclass, param
 from cr_sim.core.robot import integrate_arc, wheels_to_twist
 import numpy as np
 from numpy.typing import ArrayLike

@@ -11,9 +11,9 @@ is a :class:`Grid` and their scratch arrays a :class:`Scratch`, both made once p
 Step kernels: :func:`_shift_into` (steps 1-2 of the motion update, the reference's ``shift``)
 and :func:`_blur_passes` (step 3, ``scipy.ndimage.gaussian_filter``'s arithmetic). Fused kernels
 (:func:`_predict_kernel`, :func:`_update_kernel`): the operations of the reference's steps and
-of numpy's sums (:func:`cr_sim.core.ufunc_loops.pairwise_sum`) in the same order, without their
+of numpy's sums (:func:`clis_base.ufunc_loops.pairwise_sum`) in the same order, without their
 intermediate arrays; the sensor update skips only sub-poses that are clipped anyway (bounded by
-``hypot(C, S)``), and its ``exp`` is numpy's own loop (:func:`cr_sim.core.ufunc_loops.exp_into`).
+``hypot(C, S)``), and its ``exp`` is numpy's own loop (:func:`clis_base.ufunc_loops.exp_into`).
 The tests check each step against numpy and scipy, and the fused kernels against the steps
 composed (``test/localization_kernels.py``, ``test/test_sim_kernels.py``).
 
@@ -27,9 +27,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+from clis_base.ufunc_loops import LOOPS, exp_into
+from clis_base.ufunc_loops import pairwise_sum as _pairwise_sum
 from cr_sim.core.kernels import njit
-from cr_sim.core.ufunc_loops import LOOPS, exp_into
-from cr_sim.core.ufunc_loops import pairwise_sum as _pairwise_sum
 import numpy as np
 
 from clis_modules.core.localization_reference import EVIDENCE_MIN, EXP_LOG_LIK_MIN, LOG_LIK_MIN
@@ -612,7 +612,7 @@ def _update_kernel(z: np.ndarray, kappa: float, cos_phi: np.ndarray, sin_phi: np
                    evidence_min: float, lik: np.ndarray, out: np.ndarray) -> bool:
     """The sensor update of :meth:`MarkovLocalizer.update` into ``out``: :func:`_cell_maxima`,
     :func:`_unclipped_sub_poses`, the exps of their values by numpy's own loop
-    (:func:`cr_sim.core.ufunc_loops.exp_into`; ``loops`` its ``LOOPS``), :func:`_posterior`;
+    (:func:`clis_base.ufunc_loops.exp_into`; ``loops`` its ``LOOPS``), :func:`_posterior`;
     the other arrays are their scratch. Returns False (``out`` untouched) when no bearing
     is finite (nothing seen)."""
     best = _cell_maxima(z, kappa, cos_phi, sin_phi, cos_tk, sin_tk, low, cc, ss, bound,

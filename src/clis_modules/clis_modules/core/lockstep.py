@@ -8,7 +8,7 @@ in the headless runner, and the command in force is sent stamped ``t``.
 
 Due at ``t``: module i decides at ``t_0 + l tau_i`` (its timer is aligned to the episode start,
 as in the headless runner), in integer ticks of the simulator
-(:class:`~cr_sim.core.instants.DecisionClock`). A module that does not deliver within
+(:class:`~clis_base.instants.DecisionClock`). A module that does not deliver within
 ``timeout`` wall seconds (it died, or is restarting) is *missing*: no instant waits for it
 until it proposes again. Pure: wall times are passed in.
 """
@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 import math
 
-from cr_sim.core.instants import TOL, DecisionClock
+from clis_base.instants import TOL, DecisionClock
 import numpy as np
 from numpy.typing import ArrayLike
 

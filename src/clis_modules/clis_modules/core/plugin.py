@@ -14,7 +14,7 @@ all on one :class:`~clis_modules.core.modules.ModuleCore`. A *plug-in* provides 
 
 ==================  =============================================================================
 ``name``            the entry-point name (``plugin:`` of a module's config section)
-``Params``          its frozen parameter dataclass (``cr_sim.core.params``: ``dataclass``,
+``Params``          its frozen parameter dataclass (``clis_base.params``: ``dataclass``,
                     ``param``), with ``period`` [s], and ``value`` (:class:`ValueParams`) and
                     ``policy`` (:class:`PolicyParams`) sections where learned
 ``defaults``        the values of its section the config file may leave out (None: none)

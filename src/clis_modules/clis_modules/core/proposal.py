@@ -3,7 +3,7 @@
 Made by :class:`clis_modules.core.decider.Decider` (the headless runner's and the module nodes'
 decisions), published by the module nodes (:func:`clis_modules.conversions.proposal_msg`),
 selected from by :class:`clis_modules.core.arbiter.Arbiter`, and recorded for learning by
-:mod:`clis_learner.core.stream`. Its own module so that they all depend on it and not on each
+:mod:`clis_learner.core.intake`. Its own module so that they all depend on it and not on each
 other.
 """
 

@@ -7,7 +7,7 @@ so that it is tested like :class:`~clis_modules.core.decider.Decider`, which it 
 
 Decision instants (paper II-E: module i decides "asynchronously", every ``tau_i``): under sim
 time module i decides at ``t_0 + l tau_i`` of the running episode
-(:class:`~cr_sim.core.instants.DecisionClock`), once per instant, whichever of its timer and
+(:class:`~clis_base.instants.DecisionClock`), once per instant, whichever of its timer and
 the clock sees the instant first (:meth:`ModuleSchedule.on_timer`,
 :meth:`ModuleSchedule.on_clock`), on the readings of that instant, or of the first instant
 after it if the clock ran past it; in real time on the newest readings at every timer.
@@ -16,7 +16,7 @@ A decision waits until a reading of each sensor the module reads has arrived for
 says that the node should be woken for them.
 
 Draws: at an instant ``t_0 + l tau_i`` the headless runner's agent stream ``(seed, 2)``,
-replayed over the condition's decision instants (:mod:`cr_sim.core.streams`), so that the
+replayed over the condition's decision instants (:mod:`clis_base.agent_stream`), so that the
 proposals are the runner's bit for bit; off the tick grid (real time) a stream of the
 module's own per episode (:func:`off_grid_rng`).
 
@@ -48,16 +48,16 @@ import time
 from typing import NamedTuple
 import zlib
 
-from cr_sim.core.instants import TOL, DecisionClock
-from cr_sim.ros_support.trace import mark
+from clis_base.instants import TOL, DecisionClock
+from clis_base.trace import mark
 import numpy as np
 from numpy.typing import ArrayLike
 
 from clis_modules.core.decider import Decider, Percept
+from clis_modules.core.draws import AgentStream, module_draws
 from clis_modules.core.modules import ModuleCore
 from clis_modules.core.plugin import parse_condition
 from clis_modules.core.proposal import Proposal
-from clis_modules.core.streams import AgentStream, module_draws
 
 __all__ = ['READINGS_DEPTH', 'STALL_WARNING', 'Propose', 'PublishObservation', 'ResetTimer',
            'Log', 'Action', 'CameraReading', 'IrReading', 'WheelReading', 'InstantReadings',

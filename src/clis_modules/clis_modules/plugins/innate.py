@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 
-from cr_sim.core.params import dataclass, param
+from clis_base.params import dataclass, param
 import numpy as np
 from numpy.typing import ArrayLike
 

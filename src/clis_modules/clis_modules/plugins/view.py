@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from cr_sim.core.params import dataclass, param
+from clis_base.params import dataclass, param
 import numpy as np
 
 from clis_modules.core.features import RbfGrid, uniform_centers

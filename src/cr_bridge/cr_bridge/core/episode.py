@@ -6,10 +6,14 @@ rules and parameters (``config/sim.yaml`` sections ``episode`` and ``wander``):
 
 * **destination reached**: the omni-camera sees the destination blob and its range estimate
   is within the arena's ``goal_radius`` -> ``reward_goal`` and the episode ends (``reached``);
+  a robot driven by its profile (:mod:`cr_bridge.core.ros_robot`) reaches it by the blob's
+  apparent width instead (``goal_width``, rule ``size``), or by the scan's return in its
+  bearing within ``goal_radius`` (rule ``range``);
 * **collision**: a new contact (not in contact at the previous frame, in contact now) ->
   ``reward_collision`` once, nothing more while it stays pressed (the simulator's rule). Contact
   = the bump switch, or (if enabled) the accelerometer's horizontal magnitude above
-  ``accel_threshold``, or (if enabled) an IR reading below ``ir_contact``;
+  ``accel_threshold``, or (if enabled) an IR reading below ``ir_contact`` (a robot driven by
+  its profile: a scan sector below ``collision_range``);
 * **time limit**: ``time_limit`` s of device time after the start -> ``timeout``;
 * **next start**: between episodes the robot drives itself with the simulator's hand-made
   wander policy (:class:`cr_sim.core.wander.WanderPolicy`, reused as is) for at least
@@ -30,11 +34,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 
+from clis_base.params import dataclass as frozen_dataclass
+from clis_base.params import param
 from cr_sim.core.episodes import EpisodeBook, Event
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.observation import Observation
-from cr_sim.core.params import dataclass as frozen_dataclass
-from cr_sim.core.params import param
 from cr_sim.core.sim import EpisodeParams
 from cr_sim.core.wander import WanderParams, WanderPolicy
 import numpy as np
@@ -73,6 +77,9 @@ class Reading:
     wheels : np.ndarray, shape (2,)
     bump : int
     accel : tuple of float, shape (3,)
+    dest_width : float
+        The destination blob's apparent angular width [rad]; NaN when not seen or not measured
+        (the Cyber Rodent's frames do not carry it).
     """
 
     t: float
@@ -83,6 +90,7 @@ class Reading:
     wheels: np.ndarray
     bump: int = 0
     accel: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    dest_width: float = math.nan
 
     def observation(self, t0: float) -> Observation:
         """The simulator's :class:`Observation` of this reading (time since ``t0``)."""
@@ -121,16 +129,23 @@ class RobotEpisodes:
         The wander policy's steering noise.
     start : str
         One of :data:`START_MODES`.
+    goal_width : float
+        Above 0: the destination is reached when its blob looks at least this wide [rad]
+        (:attr:`Reading.dest_width`), whatever its range; 0: when its range is within
+        ``goal_radius``.
     """
 
     def __init__(self, episode: EpisodeParams, wander: WanderParams, contact: ContactParams,
                  goal_radius: float, ir_angles, gate: EpisodeGate, rng: np.random.Generator,
-                 start: str = 'wander') -> None:
+                 start: str = 'wander', *, goal_width: float = 0.0) -> None:
         if start not in START_MODES:
             raise ValueError(f'start {start!r}: one of {", ".join(START_MODES)}')
+        if not goal_width >= 0.0:
+            raise ValueError(f'goal_width {goal_width!r}: must be >= 0')
         self.p = episode
         self.contact = contact
         self.goal_radius = goal_radius
+        self.goal_width = goal_width
         self.gate = gate
         self.book = EpisodeBook(gate)    # numbering, events, return, learner gate
         self.policy = WanderPolicy(wander, ir_angles, rng)
@@ -163,8 +178,11 @@ class RobotEpisodes:
         return bool(c.ir_contact > 0 and r.ir.size and float(r.ir.min()) < c.ir_contact)
 
     def in_goal(self, r: Reading) -> bool:
-        return (not math.isnan(r.dest_bearing) and not math.isnan(r.dest_distance)
-                and r.dest_distance <= self.goal_radius)
+        if math.isnan(r.dest_bearing):
+            return False
+        if self.goal_width > 0.0:
+            return not math.isnan(r.dest_width) and r.dest_width >= self.goal_width
+        return not math.isnan(r.dest_distance) and r.dest_distance <= self.goal_radius
 
     def step(self, r: Reading, now: float) -> Step:
         """One sensor frame at wall time ``now`` (wall time is for the learner gate only)."""

@@ -21,10 +21,10 @@ import os
 from pathlib import Path
 from typing import Any
 
+from clis_base.params import ConfigError, config_dir, load_yaml
 import numpy as np
 
 from cr_sim.core.geometry import disc_gap
-from cr_sim.core.params import ConfigError, config_dir, load_yaml
 from cr_sim.core.robot import load_robot_params
 
 __all__ = [

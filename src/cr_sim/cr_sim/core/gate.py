@@ -33,7 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
-from cr_sim.core.instants import TOL, DecisionClock
+from clis_base.instants import TOL, DecisionClock
 
 __all__ = ['EpisodeGate']
 
@@ -61,7 +61,7 @@ class EpisodeGate:
         Graph gate: wall seconds to wait for the subscribers before the first episode.
     dt : float
         The simulator's tick [s]: the instants of ``hold_periods`` are counted in ticks
-        (:class:`~cr_sim.core.instants.DecisionClock`).
+        (:class:`~clis_base.instants.DecisionClock`).
 
     Attributes
     ----------
@@ -89,6 +89,7 @@ class EpisodeGate:
                       if self.hold_periods and 0.0 not in self.hold_periods else None)
         self.state = 'run'
         self.learned = (-1, 0)
+        self._announce: tuple[int, str] | None = None   # (agent_after, agent_state)
         self.episode = 0                 # the episode waited for ('learner') or running
         self.t = -math.inf               # the instant waiting for its command (sim time)
         self.deadline = math.inf         # wall deadline of the current wait
@@ -138,9 +139,21 @@ class EpisodeGate:
             self.resend_at = now + self.resend_period
             self.held_at = now
 
-    def on_progress(self, episode: int, version: int) -> None:
-        """The learner reported ``episode`` (``version`` = its parameter version)."""
+    def on_progress(self, episode: int, version: int, values: dict | None = None) -> None:
+        """The learner reported ``episode`` (``version`` = its parameter version); ``values``:
+        the report's other values, of which ``agent_state`` with ``agent_after`` is kept for
+        the start after episode ``agent_after`` (:meth:`announced`)."""
         self.learned = (episode, version)
+        values = values or {}
+        if 'agent_state' in values and 'agent_after' in values:
+            self._announce = (int(values['agent_after']), str(values['agent_state']))
+
+    def announced(self, episode: int) -> str | None:
+        """The text the learner asked the start of ``episode`` to carry (the agent's random
+        stream where the learner has it after episode ``episode - 1``, docs/design.md §6): the
+        simulator passes it on as ``agent_state`` without reading it. None if none."""
+        a = self._announce
+        return a[1] if a is not None and a[0] == episode - 1 else None
 
     def on_command(self, stamp: float | None, now: float = math.nan) -> float | None:
         """A command arrived at wall time ``now``, decided on readings at sim time ``stamp``

@@ -9,7 +9,7 @@ operation is the one of the reference code, in the same order, and the transcend
 are those of the reference (``math.sin``/``math.cos`` are the C library's in numpy, Python and
 numba alike; ``atan2`` and ``exp``, whose numpy versions are SIMD code that differs from the C
 library in the last bit, are numpy's own loops called from the kernel,
-:mod:`cr_sim.core.ufunc_loops`), so the simulator's results are bit-identical to the reference
+:mod:`clis_base.ufunc_loops`), so the simulator's results are bit-identical to the reference
 code's (tested: ``test/test_sim_kernels.py``). :func:`sense` is an observation, :func:`hold`
 the steps between two decisions, :func:`wander` the wander between episodes.
 
@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import math
 
+from clis_base.ufunc_loops import HAVE_NUMBA, arctan2_into, njit, pairwise_sum
 import numpy as np
 
 from cr_sim.core.geometry import TWO_PI, disc_gap, wrap_angle
 from cr_sim.core.robot import clamp_wheel, integrate_arc
-from cr_sim.core.ufunc_loops import HAVE_NUMBA, arctan2_into, njit, pairwise_sum
 
 __all__ = ['HAVE_NUMBA', 'njit', 'move', 'hold', 'scan', 'scan_into', 'scan_many', 'ir_into',
            'sense', 'odometry_step', 'odometry', 'wander']
@@ -216,7 +216,7 @@ def sense(x: float, y: float, th: float, ir_angles: np.ndarray, targets_x: np.nd
           ir_range: float, noise: np.ndarray, noisy: bool, loops: np.ndarray, dx: np.ndarray,
           dy: np.ndarray, ir: np.ndarray, out: np.ndarray) -> float:
     """:func:`scan_into` with its input ``bearing = np.arctan2(ty - y, tx - x)`` made here by
-    numpy's own loop (:mod:`cr_sim.core.ufunc_loops`; ``loops`` its :data:`LOOPS`), ``dx``,
+    numpy's own loop (:mod:`clis_base.ufunc_loops`; ``loops`` its :data:`LOOPS`), ``dx``,
     ``dy`` (T,) scratch that ends as ``tx - x``, ``ty - y``.
 
     Returns

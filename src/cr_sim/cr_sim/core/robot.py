@@ -31,17 +31,16 @@ import math
 import os
 from typing import Any
 
+from clis_base.params import config_dir, dataclass, load_params, param, ros_parameters
 import numpy as np
 from numpy.typing import ArrayLike
-
-from cr_sim.core.params import config_dir, dataclass, load_params, param, ros_parameters
 
 __all__ = [
     'ROBOT_FILE', 'RobotParams', 'load_robot_params', 'robot_defaults', 'wheels_to_twist',
     'twist_to_wheels', 'clamp_wheel', 'clamp_wheels', 'integrate_arc',
 ]
 
-#: The file in :func:`~cr_sim.core.params.config_dir` that describes the body, a ROS 2
+#: The file in :func:`~clis_base.params.config_dir` that describes the body, a ROS 2
 #: parameter file for every node (``/**: ros__parameters: robot: ...``).
 ROBOT_FILE = 'robot.yaml'
 

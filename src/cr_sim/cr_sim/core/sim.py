@@ -54,14 +54,7 @@ import math
 import os
 from typing import Any
 
-import numpy as np
-from numpy.typing import ArrayLike
-
-from cr_sim.core import kernels
-from cr_sim.core.arena import Arena
-from cr_sim.core.geometry import box_planes, disc_gap, wrap_angle
-from cr_sim.core.observation import Observation
-from cr_sim.core.params import (
+from clis_base.params import (
     ConfigError,
     as_dict,
     config_dir,
@@ -70,8 +63,15 @@ from cr_sim.core.params import (
     param,
     ros_parameters,
 )
+from clis_base.ufunc_loops import LOOPS
+import numpy as np
+from numpy.typing import ArrayLike
+
+from cr_sim.core import kernels
+from cr_sim.core.arena import Arena
+from cr_sim.core.geometry import box_planes, disc_gap, wrap_angle
+from cr_sim.core.observation import Observation
 from cr_sim.core.robot import ROBOT_FILE, RobotParams, clamp_wheels, load_robot_params
-from cr_sim.core.ufunc_loops import LOOPS
 from cr_sim.core.wander import WanderParams, WanderPolicy
 
 __all__ = [

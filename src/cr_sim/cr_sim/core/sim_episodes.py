@@ -5,10 +5,9 @@ run as the ``sim`` node (:mod:`cr_sim.sim_node`) serves them to the graph; the n
 its values into messages and its inputs into calls:
 
 - **starts** from the start rule (:func:`~cr_sim.core.starts.draw_start`) on the starts'
-  stream ``(seed, 1)``, the simulator on its own ``(seed, 0)``; the agent stream ``(seed, 2)``
-  (:class:`~cr_sim.core.streams.AgentStream`) over the decision instants, replayed over each
-  ended episode and announced at each start (``agent_state``; docs/design.md §6, "Random
-  streams");
+  stream ``(seed, 1)``, the simulator on its own ``(seed, 0)``; the agent's stream is the
+  agent's: a start carries, as ``agent_state``, the text the learner's last report asked it to
+  carry (the learner keeps that stream's state, docs/design.md §6, "Random streams"), unread;
 - **the clock**: ``/clock`` is monotonic over the run; episode ``n + 1`` starts one tick after
   episode ``n`` ended, ``T_{n+1} = T_n + t_end,n + dt``, so that every stamp belongs to one
   episode only; sim time is ``T_n + k dt`` at tick ``k`` of episode ``n``;
@@ -16,10 +15,10 @@ its values into messages and its inputs into calls:
   (:class:`~cr_sim.core.episodes.EpisodeBook`, shared with the real robot's bridge);
 - **ends**: ``reached`` / ``timeout`` from the simulator, ``reset`` from outside; each reported
   once, with the resume state the next episode starts from;
-- **resume state**: the robot's pose, wheels and contact, the clock of the next start, then the
-  three random streams (:meth:`SimEpisodes.resume_state`), so that a run stopped after episode
-  ``n`` and resumed from it (``first_episode = n + 1``) makes the episodes, rewards and stamps
-  of the run that was not stopped, to the bit;
+- **resume state**: the robot's pose, wheels and contact, the clock of the next start, then
+  the simulator's two random streams (:meth:`SimEpisodes.resume_state`), so that a run stopped
+  after episode ``n`` and resumed from it (``first_episode = n + 1``) makes the episodes,
+  rewards and stamps of the run that was not stopped, to the bit;
 - **commands**: the wheels in force, replaced by a stop when older than ``watchdog`` s of sim
   time; under lockstep a command decided in an earlier episode is stale;
 - **holds** (:class:`~cr_sim.core.gate.EpisodeGate`): the graph gate before the first episode,
@@ -35,18 +34,17 @@ from collections import deque
 from collections.abc import Callable, Sequence
 import time
 
+from clis_base.instants import DecisionClock
+from clis_base.params import ConfigError
 import numpy as np
 from numpy.typing import ArrayLike
 
 from cr_sim.core.arena import Arena
 from cr_sim.core.episodes import EpisodeBook, Event, format_resume_state, parse_resume_state
 from cr_sim.core.gate import EpisodeGate
-from cr_sim.core.instants import DecisionClock
 from cr_sim.core.observation import Observation
-from cr_sim.core.params import ConfigError
 from cr_sim.core.sim import SimParams, Simulator, StepResult
 from cr_sim.core.starts import draw_start
-from cr_sim.core.streams import AgentStream
 
 __all__ = ['GRAPH_POLL', 'READINGS', 'SimEpisodes']
 
@@ -83,11 +81,9 @@ class SimEpisodes:
         A command older than this [s of sim time] is replaced by a stop.
     decision_periods : sequence of float
         The controller's decision periods (0 entries ignored): the decision instants of the
-        ``instants`` readings and of the agent stream.
+        ``instants`` readings.
     readings : str
         One of :data:`READINGS`.
-    agent_selection : str
-        ``''`` (no agent stream) or the arbiter's selection mode (``episode``, ``decision``).
     clock : callable
         Wall time [s], monotonic.
 
@@ -101,7 +97,6 @@ class SimEpisodes:
                  start: str = 'A', first_episode: int = 1, resume_state: str = '',
                  auto_reset: bool = True, watchdog: float = 2.0,
                  decision_periods: Sequence[float] = (), readings: str = 'tick',
-                 agent_selection: str = '',
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.arena = arena
         self.params = params
@@ -120,10 +115,6 @@ class SimEpisodes:
         self.clock = DecisionClock(periods, self.dt) if periods else None
         if readings == 'instants' and self.clock is None:
             raise ConfigError("node.readings = 'instants' needs node.lockstep_periods")
-        # the agent stream (seed, 2) over the episodes, for the modules and the arbiter
-        self.agent = (AgentStream(np.random.default_rng([seed, 2]), len(periods),
-                                  agent_selection, self.clock)
-                      if agent_selection and self.clock is not None else None)
         self.u = np.zeros(2)                # the command in force, since u_time (sim.t)
         self.u_time = -np.inf
         self.book = EpisodeBook(gate, first_episode)
@@ -155,10 +146,9 @@ class SimEpisodes:
     def resume_state(self) -> str:
         """What the next episode starts from, exactly (``node.resume_state``): the robot's
         pose, wheels and contact (:meth:`Simulator.carried`) and the clock, as hex floats,
-        then the random streams (the simulator's, the starts', the agent stream), as
-        URL-safe base64 of their JSON (:func:`~cr_sim.core.episodes.format_resume_state`)."""
-        streams = {'sim': self.sim.random_state(), 'starts': self.start_rng.bit_generator.state,
-                   'agent': self.agent.start_state if self.agent is not None else None}
+        then the random streams (the simulator's, the starts'), as URL-safe base64 of their
+        JSON (:func:`~cr_sim.core.episodes.format_resume_state`)."""
+        streams = {'sim': self.sim.random_state(), 'starts': self.start_rng.bit_generator.state}
         return format_resume_state((*self.sim.carried(), self._next_offset()), streams)
 
     def _resume(self, text: str) -> None:
@@ -169,9 +159,6 @@ class SimEpisodes:
             self.sim.carry(values[:6])
             self.sim.set_random_state(streams['sim'])
             self.start_rng.bit_generator.state = streams['starts']
-            if self.agent is not None and streams['agent'] is not None:
-                self.agent.rng.bit_generator.state = streams['agent']
-                self.agent.begin_episode()
         except (ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f'node.resume_state = {text!r}: {exc}') from None
         self.time_offset = values[6]
@@ -185,8 +172,8 @@ class SimEpisodes:
 
     def start(self) -> Event:
         """Start the next episode: its ``start`` event (``episode``, ``start``, ``pose``,
-        ``params_version`` under the learner gate, ``dt``, ``agent_state`` with the agent
-        stream)."""
+        ``params_version`` under the learner gate, ``dt``, then ``agent_state`` if the learner
+        announced one for it (:meth:`~cr_sim.core.gate.EpisodeGate.announced`))."""
         if self.book.started_any:           # not this run's first: one tick after the end
             self.time_offset = self._next_offset()
         start, heading = draw_start(self.start_mode, self.arena, self.start_rng)
@@ -196,9 +183,8 @@ class SimEpisodes:
         ev = self.book.start(self.sim_time, start=start,
                              pose=' '.join(f'{p:.3f}' for p in self.sim.pose))
         ev.values['dt'] = repr(self.dt)
-        if self.agent is not None:
-            self.agent.begin_episode()
-            ev.values['agent_state'] = self.agent.state()
+        if (announced := self.gate.announced(self.book.episode)) is not None:
+            ev.values['agent_state'] = announced
         return ev
 
     def step(self) -> StepResult | None:
@@ -218,8 +204,6 @@ class SimEpisodes:
         ``resume_state`` of the next start; None if none runs (an end is reported once)."""
         if not self.book.running:
             return None
-        if self.agent is not None:      # the draws of the episode's instants (AgentStream)
-            self.agent.end_episode(int(round(self.sim.t / self.dt)))
         return self.book.end(name, self.sim_time, self.sim.t, resume_state=self.resume_state())
 
     def finish(self, res: StepResult) -> tuple[Event | None, bool]:

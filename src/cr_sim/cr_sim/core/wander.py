@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import math
 
+from clis_base.params import dataclass, param
 import numpy as np
 from numpy.typing import ArrayLike
 
 from cr_sim.core.observation import Observation
-from cr_sim.core.params import dataclass, param
 
 __all__ = ['WanderParams', 'WanderPolicy']
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 import copy
 
 from clis_learner.core.config import load_clis_params
+from clis_learner.core.intake import EpisodeStream
 from clis_learner.core.learner import Learner
 from clis_learner.core.memory import EpisodeMemory, StreamBuffer, episode_time
-from clis_learner.core.stream import EpisodeStream
 from clis_modules.core.modules import make_modules
 from clis_modules.core.proposal import Proposal
 import numpy as np

@@ -1,12 +1,12 @@
 """Robot profiles: any differential-drive ROS 2 robot described once, for CLIS to drive it.
 
 A profile is a plain YAML file ``config/robots/NAME.yaml`` in the config folder
-(:func:`~cr_sim.core.params.config_dir`, ``$CLIS_CONFIG_DIR``); :func:`load_profile` reads and
+(:func:`~clis_base.params.config_dir`, ``$CLIS_CONFIG_DIR``); :func:`load_profile` reads and
 validates it into a frozen :class:`RobotProfile`, :func:`PROFILE_NAMES` lists the folder. It is
 not a ROS parameter file: ``scan.sectors`` is a list of mappings, which ROS parameters cannot
 hold, and a profile describes a robot as an arena file describes a layout (data a node takes by
 name). Every value is range-checked at load (the fields' ``param`` declarations); a bad one
-raises :class:`~cr_sim.core.params.ConfigError` naming the profile, the dotted key and its
+raises :class:`~clis_base.params.ConfigError` naming the profile, the dotted key and its
 allowed range, e.g. ``profile husky: camera.hfov_deg = 400.0 is out of range: must be in
 [1, 360]``.
 
@@ -55,9 +55,10 @@ from pathlib import Path
 import re
 from typing import Any
 
+from clis_base.params import ConfigError, build, config_dir, dataclass, load_yaml, param
+
 from cr_sim.core.arena import ArenaError, load_arena
 from cr_sim.core.camera import MAX_PIXELS, Panoramic, Pinhole
-from cr_sim.core.params import ConfigError, build, config_dir, dataclass, load_yaml, param
 from cr_sim.core.render import COLOURS
 
 __all__ = [
@@ -66,7 +67,7 @@ __all__ = [
     'EpisodeSpec', 'ArenaSpec', 'RobotProfile', 'PROFILE_NAMES', 'profile_path', 'load_profile',
 ]
 
-#: The folder of the profiles in :func:`~cr_sim.core.params.config_dir`.
+#: The folder of the profiles in :func:`~clis_base.params.config_dir`.
 ROBOTS_DIR = 'robots'
 #: The colour names a profile may give: those of an arena file (:data:`cr_sim.core.render.
 #: COLOURS`), the names the blob detector has a range for (``clis_modules.core.blobs.

@@ -17,7 +17,7 @@ restarted, otherwise).
 It is the one episode assembly of the project: the headless runner feeds it too, directly
 (``whole=True``: every record of every episode, rewards only where they are not 0), and takes
 the same row (:attr:`Closed.core`) from it; the learner node feeds it from its topics and
-``clis learn`` from a bag, both through :func:`clis_learner.stream_topics.feed`.
+``clis learn`` from a bag, both through :func:`clis_learner.intake_topics.feed`.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
+from clis_base.instants import DecisionClock
 from clis_modules.core.modules import ModuleCore
 from clis_modules.core.proposal import Proposal
-from cr_sim.core.instants import DecisionClock
 import numpy as np
 
 from clis_learner.core.config import ClisParams

@@ -40,7 +40,7 @@ import time
 
 import rclpy
 
-from cr_sim.ros_support.rclpy_private import RCLError
+from clis_base.ros.rclpy_private import RCLError
 
 __all__ = ['CPU_WAKEUP_DEVICE', 'SHUTDOWN_RACES', 'RCLError', 'hold_cpu_wakeup_latency',
            'realtime', 'realtime_logged',

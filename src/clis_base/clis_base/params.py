@@ -21,6 +21,8 @@ from collections.abc import Mapping
 import copy
 import dataclasses
 from dataclasses import MISSING, dataclass, field
+import difflib
+import functools
 import math
 import os
 from pathlib import Path
@@ -33,6 +35,7 @@ __all__ = [
     'ConfigError', 'param', 'build', 'build_fields', 'load_yaml', 'ros_parameters', 'config_dir',
     'replace',
     'dataclass', 'as_dict', 'identity_dict', 'set_dotted', 'flatten', 'unflatten', 'load_params',
+    'ROS_KEYS', 'project_keys', 'is_ros_key', 'unknown_key',
 ]
 
 
@@ -220,7 +223,7 @@ def config_dir() -> Path:
     """The folder holding the default config files.
 
     ``$CLIS_CONFIG_DIR`` if set, else the repository's ``config/`` (when run from source),
-    else the installed ``share/cr_sim/config``.
+    else the installed ``share/clis_base/config``.
     """
     env = os.environ.get('CLIS_CONFIG_DIR')
     if env:
@@ -231,7 +234,7 @@ def config_dir() -> Path:
             return parent / 'config'
     try:
         from ament_index_python.packages import get_package_share_directory
-        return Path(get_package_share_directory('cr_sim')) / 'config'
+        return Path(get_package_share_directory('clis_base')) / 'config'
     except Exception:  # noqa: BLE001 - not installed: fall through to a clear error
         pass
     raise ConfigError('cannot find the config folder: set CLIS_CONFIG_DIR')
@@ -339,3 +342,43 @@ def load_params(cls: type, filename: str, node: str, path: str | os.PathLike | N
         return build(cls, data, where=where)
     except ConfigError as exc:
         raise ConfigError(f'{p}: {exc}') from None
+
+
+# ---------------------------------------------------------------- the project's keys
+
+#: Parameters rclpy (or ROS itself) declares on every node, and their prefixes.
+ROS_KEYS = ('use_sim_time', 'start_type_description_service', 'qos_overrides.')
+
+
+@functools.lru_cache(maxsize=4)
+def _project_keys(folder: str) -> frozenset[str]:
+    keys: set[str] = set()
+    for path in sorted(Path(folder).glob('*.yaml')):
+        try:
+            data = load_yaml(path)
+        except ConfigError:
+            continue
+        for section in data.values():
+            if isinstance(section, dict) and isinstance(section.get('ros__parameters'), dict):
+                keys.update(flatten(section['ros__parameters']))
+    return frozenset(keys)
+
+
+def project_keys() -> frozenset[str]:
+    """Every dotted parameter key a node of the project declares: the keys of every ROS
+    parameter file of :func:`~clis_base.params.config_dir` (``sim.yaml``, ``graph.yaml``,
+    ``clis.yaml``, ``bridge.yaml``...)."""
+    return _project_keys(str(config_dir()))
+
+
+def is_ros_key(name: str) -> bool:
+    """Whether ``name`` is one of :data:`ROS_KEYS` (rclpy's own parameters)."""
+    return any(name == k or (k.endswith('.') and name.startswith(k)) for k in ROS_KEYS)
+
+
+def unknown_key(key: str, known, where: str = '') -> ConfigError:
+    """The error for an unknown ``key``: ``WHERE: unknown key KEY; did you mean NEAREST?``
+    (the nearest of ``known`` by :func:`difflib.get_close_matches`, if any is close)."""
+    near = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
+    hint = f'; did you mean {near[0]}?' if near else ''
+    return ConfigError(f'{where + ": " if where else ""}unknown key {key}{hint}')

@@ -1,4 +1,4 @@
-"""The learner's topics into its :class:`~clis_learner.core.stream.EpisodeStream`: the one
+"""The learner's topics into its :class:`~clis_learner.core.intake.EpisodeStream`: the one
 routing of the live learner node (:mod:`clis_learner.learner_node`) and of ``clis learn``
 reading a bag (:func:`clis_app.bags.commands.feed_stream`).
 
@@ -21,7 +21,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
 
-from clis_learner.core.stream import Closed, EpisodeStream
+from clis_learner.core.intake import Closed, EpisodeStream
 from clis_modules import conversions as mconv
 from cr_sim import conversions as rconv
 

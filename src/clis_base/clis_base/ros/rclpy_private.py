@@ -1,16 +1,16 @@
 """The one place where the project touches rclpy's private members, for one rclpy version.
 
-The lean executor (:mod:`cr_sim.ros_support.executor`) replaces rclpy's wait-and-dispatch step
+The lean executor (:mod:`clis_base.ros.executor`) replaces rclpy's wait-and-dispatch step
 and reads the executor's and the nodes' internals; the graph nodes take ``/clock`` on demand
 through the node's time source, and every node reads the parameter overrides it was started
-with (:mod:`clis_modules.graph_node`, :mod:`cr_sim.ros_support.ros_params`); the simulator
+with (:mod:`clis_base.ros.graph_node`, :mod:`clis_base.ros.ros_params`); the simulator
 waits on a wait set of its own (:class:`cr_sim.sim_node.CommandWait`). None of that is rclpy's
 public API: it is written against rclpy :data:`WRITTEN_FOR` (ROS 2 Jazzy) and used only there.
 
 On any other rclpy version (:func:`supported` is False) the callers fall back to rclpy's
 public API, with the same results and only the speed lost: ``make_executor('lean')`` gives
 rclpy's :class:`~rclpy.executors.SingleThreadedExecutor` and logs a warning
-(:func:`cr_sim.ros_support.executor.make_executor`), a graph node subscribes ``/clock`` as
+(:func:`clis_base.ros.executor.make_executor`), a graph node subscribes ``/clock`` as
 usual instead of on demand (:func:`clock_subscription` is None), and the simulator waits for
 its commands through the executor (:func:`cr_sim.sim_node.run`). The parameter overrides
 (:func:`parameter_overrides`) are read wherever rclpy keeps them under that name.
@@ -147,7 +147,7 @@ def new_wait_set(sizes: tuple[int, ...], context_handle):
 
 def wrap_executor_waits(on_wake: Callable[[], None]) -> None:
     """Call ``on_wake()`` each time the wait of one of rclpy's own executors returns, in this
-    process (a development aid: :func:`cr_sim.ros_support.trace.trace_executor_wakeups`)."""
+    process (a development aid: :func:`clis_base.ros.executor.trace_executor_wakeups`)."""
     import rclpy.executors as executors
     real = executors._rclpy
 

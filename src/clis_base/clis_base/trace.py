@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 import time
 
-__all__ = ['TRACING', 'mark', 'dump', 'trace_executor_wakeups']
+__all__ = ['TRACING', 'mark', 'dump']
 
 #: Whether ``CLIS_TRACE`` is set (callers may skip building a mark's arguments).
 TRACING = bool(os.environ.get('CLIS_TRACE'))
@@ -51,17 +51,3 @@ def dump(name: str) -> None:
     with open(out / f'{name}-{os.getpid()}.trace', 'a') as fh:
         fh.writelines(f'{w} {e} {t!r}\n' for w, e, t in _marks)
     _marks.clear()
-
-
-def trace_executor_wakeups() -> None:
-    """Mark ``wake`` each time an rclpy executor's wait returns in this process (with
-    ``CLIS_TRACE``): splits a hop into the wakeup itself and the executor's Python work up to
-    the callback."""
-    if not TRACING:
-        return
-    from cr_sim.ros_support.rclpy_private import wrap_executor_waits
-    wrap_executor_waits(lambda: _marks.append((time.monotonic_ns(), 'wake', float('nan'))))
-
-
-if TRACING:
-    trace_executor_wakeups()

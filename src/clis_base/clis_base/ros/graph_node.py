@@ -31,20 +31,6 @@ import sys
 import time
 from typing import Any
 
-from cr_sim.conversions import STREAM_DEPTH
-from cr_sim.core.arena import Arena, load_arena
-from cr_sim.core.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from cr_sim.ros_support.executor import EXECUTORS, make_executor
-from cr_sim.ros_support.lifecycle import (
-    SHUTDOWN_RACES,
-    realtime_logged,
-    reraise_unless_shut_down,
-    settle_heap,
-)
-from cr_sim.ros_support.profiling import start_profile, stop_profile
-from cr_sim.ros_support.rclpy_private import clock_subscription, parameter_overrides, set_clock
-from cr_sim.ros_support.ros_params import declare_from_config, print_help_and_exit_if_asked
-from cr_sim.ros_support.trace import dump as dump_trace
 import rclpy
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType, JumpThreshold
@@ -52,10 +38,21 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import LivelinessPolicy, QoSProfile
+from rclpy.qos import QoSProfile
 
-from clis_modules.core.modules import ModuleSetParams
-from clis_modules.core.plugin import parse_condition
+from clis_base.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from clis_base.ros.executor import EXECUTORS, make_executor
+from clis_base.ros.process import (
+    SHUTDOWN_RACES,
+    realtime_logged,
+    reraise_unless_shut_down,
+    settle_heap,
+)
+from clis_base.ros.profiling import start_profile, stop_profile
+from clis_base.ros.qos import STREAM_DEPTH, proposal_qos
+from clis_base.ros.rclpy_private import clock_subscription, parameter_overrides, set_clock
+from clis_base.ros.ros_params import declare_from_config, print_help_and_exit_if_asked
+from clis_base.trace import dump as dump_trace
 
 __all__ = ['GraphParams', 'GraphNode', 'OnDemand', 'make_executor', 'proposal_qos', 'run_node',
            'take_all']
@@ -71,7 +68,7 @@ class GraphParams:
     arena_file: str = param(doc="arena description (the place module's map); '' = "
                                 'config/arena.yaml')
     executor: str = param(choices=EXECUTORS, doc="rclpy executor: 'lean' "
-                          "(cr_sim.ros_support.executor.LeanExecutor), 'single' (rclpy's "
+                          "(clis_base.ros.executor.LeanExecutor), 'single' (rclpy's "
                           "SingleThreadedExecutor) or 'events' (rclpy's EventsExecutor)")
     liveliness_lease: float = param(0.1, 60.0, doc='[s wall] DDS liveliness lease of the '
                                     'proposals: the arbiter knows a module died this soon')
@@ -83,24 +80,9 @@ class GraphParams:
                                    'latency at 0 us (idle cores poll). Fail-soft without the '
                                    'right to it')
 
-    def validate(self) -> None:
-        """``condition`` is one (:func:`~clis_modules.core.plugin.parse_condition`)."""
-        parse_condition(self.condition)
-
     def proposal_qos(self, depth: int = STREAM_DEPTH) -> QoSProfile:
         """QoS of a module's proposals with this ``liveliness_lease``: see :func:`proposal_qos`."""
         return proposal_qos(self.liveliness_lease, depth)
-
-
-def proposal_qos(lease: float, depth: int = STREAM_DEPTH) -> QoSProfile:
-    """QoS of a module's proposals, publisher and arbiter: automatic liveliness with a lease of
-    ``lease`` wall seconds, so that the arbiter notices a killed module within it.
-
-    DDS matches a publisher only if it offers a lease no longer than the one requested: a
-    hand-made publisher of proposals must offer it too (the default, infinite, does not match).
-    """
-    return QoSProfile(depth=depth, liveliness=LivelinessPolicy.AUTOMATIC,
-                      liveliness_lease_duration=Duration(seconds=lease))
 
 
 #: The sections of ``clis.yaml`` that are not module instances (some node reads each).
@@ -179,15 +161,19 @@ class GraphNode(Node):
     section_cls : type or None
         Its frozen parameter dataclass.
     clis_cls : type
-        Dataclass of the ``clis.yaml`` sections the node reads (:class:`ModuleSetParams`, or
-        the learner's ``ClisParams``).
+        Dataclass of the ``clis.yaml`` sections the node reads (the modules'
+        ``ModuleSetParams``, or the learner's ``ClisParams``).
+    check_condition : callable, optional
+        ``check_condition(graph.condition)`` raises ValueError on a condition that is none
+        (the modules' one parser, ``clis_modules.core.plugin.parse_condition``): the node stops
+        at start naming ``graph``.
 
     Attributes
     ----------
     control_path : bool
         Whether the node is on the sensor-to-command path (``graph.realtime_priority``
         applies to it): the modules and the arbiter, not the learner nor the recorder.
-    clis : ModuleSetParams or ClisParams
+    clis : the ``clis_cls`` instance
     graph : GraphParams
     cfg : the ``section_cls`` instance (None without a section)
     """
@@ -195,7 +181,9 @@ class GraphNode(Node):
     control_path = True
 
     def __init__(self, name: str, section: str | None = None, section_cls: type | None = None,
-                 clis_cls: type = ModuleSetParams, **kwargs: Any) -> None:
+                 *, clis_cls: type,
+                 check_condition: Callable[[str], object] | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
         if 'use_sim_time' not in parameter_overrides(self):   # not set by the user: follow
             self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, True)])
@@ -211,14 +199,15 @@ class GraphNode(Node):
             defaults[section] = graph[section]
         values = declare_from_config(self, defaults)
         self.graph: GraphParams = build(GraphParams, values.pop('graph'), where='graph')
+        if check_condition is not None:
+            try:
+                check_condition(self.graph.condition)
+            except ValueError as exc:
+                raise ConfigError(f'graph: {exc}') from exc
         self.cfg = (build(section_cls, values.pop(section), where=section)
                     if section is not None else None)
         self.clis = build(clis_cls, values)
         self._clock_sub = None                   # /clock taken on demand (clock_on_demand)
-
-    def arena(self) -> Arena:
-        """The arena of ``graph.arena_file``."""
-        return load_arena(self.graph.arena_file or None)
 
     def now_s(self) -> float:
         """The node's clock (sim time under ``/clock``) in seconds."""

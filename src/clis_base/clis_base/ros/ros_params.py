@@ -10,64 +10,28 @@ Overrides are checked here, once for every node (docs/design.md, parameters): a 
 node of the project declares (a typo, ``node.sped_factor``) stops the node naming the nearest
 known key; an integer for a float (``:=5``) is taken as that float; any other value of the
 wrong type (``:=fast``) is declared as given, so that the node's dataclass rejects it naming
-the key, the type and the range (:func:`cr_sim.core.params.build`), instead of rclpy raising
+the key, the type and the range (:func:`clis_base.params.build`), instead of rclpy raising
 from inside ``declare_parameter``. A key another node declares is left to that node: one
 ``--params-file`` (``/**``) serves the whole graph, as ``clis run --params`` gives it.
 """
 
 from __future__ import annotations
 
-import difflib
-import functools
 import sys
 from typing import TYPE_CHECKING, Any
 
-from cr_sim.core.params import ConfigError, config_dir, flatten, load_yaml, unflatten
+from clis_base.params import (
+    flatten,
+    is_ros_key,
+    project_keys,
+    unflatten,
+    unknown_key,
+)
 
 if TYPE_CHECKING:                     # this module imports without rclpy (clis_learner's checks)
     from rclpy.node import Node
 
-__all__ = ['declare_from_config', 'print_help_and_exit_if_asked', 'project_keys',
-           'unknown_key', 'ROS_KEYS']
-
-#: Parameters rclpy (or ROS itself) declares on every node, and their prefixes.
-ROS_KEYS = ('use_sim_time', 'start_type_description_service', 'qos_overrides.')
-
-
-@functools.lru_cache(maxsize=4)
-def _project_keys(folder: str) -> frozenset[str]:
-    from pathlib import Path
-    keys: set[str] = set()
-    for path in sorted(Path(folder).glob('*.yaml')):
-        try:
-            data = load_yaml(path)
-        except ConfigError:
-            continue
-        for section in data.values():
-            if isinstance(section, dict) and isinstance(section.get('ros__parameters'), dict):
-                keys.update(flatten(section['ros__parameters']))
-    return frozenset(keys)
-
-
-def project_keys() -> frozenset[str]:
-    """Every dotted parameter key a node of the project declares: the keys of every ROS
-    parameter file of :func:`~cr_sim.core.params.config_dir` (``sim.yaml``, ``graph.yaml``,
-    ``clis.yaml``, ``bridge.yaml``...)."""
-    return _project_keys(str(config_dir()))
-
-
-def is_ros_key(name: str) -> bool:
-    """Whether ``name`` is one of :data:`ROS_KEYS` (rclpy's own parameters)."""
-    return any(name == k or (k.endswith('.') and name.startswith(k)) for k in ROS_KEYS)
-
-
-def unknown_key(key: str, known, where: str = '') -> ConfigError:
-    """The error for an unknown ``key``: ``WHERE: unknown key KEY; did you mean NEAREST?``
-    (the nearest of ``known`` by :func:`difflib.get_close_matches`, if any is close)."""
-    near = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
-    hint = f'; did you mean {near[0]}?' if near else ''
-    return ConfigError(f'{where + ": " if where else ""}unknown key {key}{hint}')
-
+__all__ = ['declare_from_config', 'print_help_and_exit_if_asked']
 
 def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
@@ -121,7 +85,7 @@ def declare_from_config(node: Node, defaults: dict) -> dict:
     """
     from rcl_interfaces.msg import ParameterDescriptor
 
-    from cr_sim.ros_support.rclpy_private import parameter_overrides
+    from clis_base.ros.rclpy_private import parameter_overrides
 
     flat = flatten(defaults)
     overrides = parameter_overrides(node)

@@ -3,7 +3,7 @@ every process of the graph that needs it (docs/design.md §6, "Random streams").
 
 The headless runner draws every decision and every selection of a run from ONE generator
 ``default_rng([seed, 2])`` (the *agent stream*), in the order its loop makes them: at each tick
-``k`` of an episode at which modules are due (:class:`~cr_sim.core.instants.DecisionClock`),
+``k`` of an episode at which modules are due (:class:`~clis_base.instants.DecisionClock`),
 two standard normals for each due module's proposal, in module order
 (:meth:`clis_modules.core.decider.Decider.decide`), then one uniform for the arbiter's
 selection (:class:`clis_modules.core.arbiter.Arbiter`) if it draws at ``k``: at the episode's
@@ -16,7 +16,7 @@ state, features or parameters: ``standard_normal(2)`` whatever the width ``sigma
 of available modules, one included). So the sequence of calls is fixed by the decision
 instants and the episodes' lengths alone, and any process can make it: a module node, or the
 arbiter node, makes every call of the run in that order and keeps its own draws
-(:meth:`AgentStream.instant`; :mod:`clis_modules.core.streams`), and gets, bit for bit, the
+(:meth:`AgentStream.instant`; :mod:`clis_modules.core.draws`), and gets, bit for bit, the
 numbers the runner's module (or arbiter) gets. The runner draws through the same object. The
 simulator node makes the calls of each ended episode too (:meth:`AgentStream.end_episode`),
 and announces the stream's state at each episode start (``agent_state``), so that a module
@@ -36,9 +36,8 @@ from __future__ import annotations
 import json
 import math
 
+from clis_base.instants import DecisionClock
 import numpy as np
-
-from cr_sim.core.instants import DecisionClock
 
 __all__ = ['ACTION_DRAWS', 'AgentStream']
 

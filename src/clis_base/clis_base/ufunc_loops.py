@@ -50,7 +50,7 @@ __all__ = ['LOOPS', 'CHECKED_ON', 'numpy_version', 'supported', 'exp_into', 'arc
 #: The numpy versions (major.minor) whose ``PyUFuncObject`` layout :func:`_loop_of` was checked
 #: on (requirements-py.txt pins one). On any other the raw offsets are not read at all (an
 #: address from another layout could point anywhere): :data:`LOOPS` holds zeros, the kernels
-#: use the C library's functions, and a warning says so, as :mod:`cr_sim.ros_support.
+#: use the C library's functions, and a warning says so, as :mod:`clis_base.ros.
 #: rclpy_private` does for rclpy.
 CHECKED_ON = ('2.4',)
 
@@ -235,7 +235,7 @@ def _checked_loops(version: str | None = None) -> np.ndarray:
     layout was checked on (:data:`CHECKED_ON`)."""
     zeros = np.zeros(4, dtype=np.intp)
     if not supported(version):
-        warnings.warn(f'cr_sim.core.ufunc_loops: numpy {version or numpy_version()} is not one '
+        warnings.warn(f'clis_base.ufunc_loops: numpy {version or numpy_version()} is not one '
                       f'of {", ".join(CHECKED_ON)} whose ufunc layout was checked; using the C '
                       "library's exp/arctan2 in the kernels (results differ from numpy's in the "
                       'last bits)', RuntimeWarning, stacklevel=2)
@@ -256,7 +256,7 @@ def _checked_loops(version: str | None = None) -> np.ndarray:
     arctan2_into(loops, y, x, out, x.shape[0])
     ok = ok and np.array_equal(out, np.arctan2(y, x))
     if not ok:   # pragma: no cover
-        warnings.warn("cr_sim.core.ufunc_loops: numpy's exp/arctan2 loops could not be "
+        warnings.warn("clis_base.ufunc_loops: numpy's exp/arctan2 loops could not be "
                       "called from the kernels; using the C library's (results differ from "
                       "numpy's in the last bits)", RuntimeWarning, stacklevel=2)
         return zeros

@@ -10,8 +10,8 @@ them back into the tick of the running episode (a stamp off the tick grid by mor
 :data:`TOL` is no tick). Users: the runner (:mod:`clis_app.experiments.runner`), the module node
 (its decision grid), the arbiter's lockstep barrier (:mod:`clis_modules.core.lockstep`), the
 simulator's lockstep gate (:mod:`cr_sim.core.gate`), the learner's episode stream
-(:mod:`clis_learner.core.stream`) and the replayed random streams
-(:mod:`clis_modules.core.streams`).
+(:mod:`clis_learner.core.intake`) and the replayed random streams
+(:mod:`clis_modules.core.draws`).
 """
 
 from __future__ import annotations

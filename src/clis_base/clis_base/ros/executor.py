@@ -15,7 +15,7 @@ it gets there: one wait, then every ready entity's callback called directly, in 
 (waitables, then per node timers, subscriptions, guard conditions, clients, services). The wait
 set object is reused while the number of entities stays the same.
 
-It relies on rclpy's internals, reached only through :mod:`cr_sim.ros_support.rclpy_private`:
+It relies on rclpy's internals, reached only through :mod:`clis_base.ros.rclpy_private`:
 on an rclpy other than the one that module was written for, :func:`make_executor` gives
 rclpy's SingleThreadedExecutor instead (same results, slower) and logs a warning.
 """
@@ -36,7 +36,8 @@ from rclpy.task import Task
 from rclpy.timer import Timer
 from rclpy.waitable import NumberOfEntities
 
-from cr_sim.ros_support import rclpy_private as rp
+from clis_base.ros import rclpy_private as rp
+from clis_base.trace import TRACING, mark
 
 __all__ = ['EXECUTORS', 'LeanExecutor', 'make_executor']
 
@@ -92,7 +93,7 @@ class LeanExecutor(rp.PrivateExecutor):
 
     def _active(self) -> tuple:
         """The entities to wait on now: every node's entities whose callback group can run
-        them (an :class:`~clis_modules.graph_node.OnDemand` group turns on and off), in
+        them (an :class:`~clis_base.ros.graph_node.OnDemand` group turns on and off), in
         rclpy's order (node by node: timers, subscriptions, guard conditions, clients,
         services), then the waitables (QoS events); a tuple that is the plan's key."""
         active, waitables = [], []
@@ -197,7 +198,7 @@ def make_executor(kind: str, logger=None, context=None):
     """An executor of :data:`EXECUTORS`: ``'lean'``, :class:`LeanExecutor`; ``'single'``,
     rclpy's SingleThreadedExecutor; ``'events'``, rclpy's EventsExecutor.
 
-    ``'lean'`` on an rclpy other than :data:`~cr_sim.ros_support.rclpy_private.WRITTEN_FOR`
+    ``'lean'`` on an rclpy other than :data:`~clis_base.ros.rclpy_private.WRITTEN_FOR`
     gives rclpy's SingleThreadedExecutor, with a warning to ``logger`` (default: the rclpy
     logger ``executor``). ``context``: rclpy's default one if None."""
     if kind == 'events':
@@ -212,7 +213,7 @@ def make_executor(kind: str, logger=None, context=None):
         logger.warning(
             f"executor 'lean' is written for rclpy {rp.WRITTEN_FOR}, not "
             f"{rp.rclpy_version() or 'an unknown version'}: using rclpy's "
-            'SingleThreadedExecutor (same results, slower; cr_sim.ros_support.rclpy_private)')
+            'SingleThreadedExecutor (same results, slower; clis_base.ros.rclpy_private)')
     return SingleThreadedExecutor(context=context)
 
 
@@ -268,3 +269,14 @@ class _Plan:
                    'guards': executor._guard_condition, 'clients': executor._client,
                    'services': executor._service}
         self.dispatch = [(e, e.handle.pointer, runners[k]) for e, k in kinds]
+
+
+def trace_executor_wakeups() -> None:
+    """Mark ``wake`` (:func:`clis_base.trace.mark`) each time an rclpy executor's wait returns
+    in this process (with ``CLIS_TRACE``): splits a hop into the wakeup itself and the
+    executor's Python work up to the callback."""
+    if TRACING:
+        rp.wrap_executor_waits(lambda: mark('wake'))
+
+
+trace_executor_wakeups()

@@ -1,6 +1,6 @@
 """The agent stream's draws as the generators the modules' deciders and the arbiter call.
 
-:class:`~cr_sim.core.streams.AgentStream` (the one implementation of the runner's call order,
+:class:`~clis_base.agent_stream.AgentStream` (the one implementation of the runner's call order,
 kept in ``cr_sim`` because the simulator node replays it too) makes the draws of each decision
 instant; :class:`ModuleDraws` hands a :class:`~clis_modules.core.decider.Decider` its module's
 two normals of the instant, :class:`SelectionDraws` the arbiter its uniform. The headless
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from cr_sim.core.streams import AgentStream
+from clis_base.agent_stream import AgentStream
 import numpy as np
 
 from clis_modules.core.policy import ACTION_DIM
