@@ -23,6 +23,7 @@ setup(
         'console_scripts': [
             'bridge = cr_bridge.bridge_node:main',
             'emulator = cr_bridge.emulator:main',
+            'robot = cr_bridge.robot_node:main',
         ],
     },
 )

@@ -48,6 +48,9 @@ class Child:
     args: list[str] | None = None
     #: ROS remapping rules (``-r FROM:=TO``): a module instance's node name, ``__node:=NAME``
     remaps: dict[str, str] = field(default_factory=dict)
+    #: Whether the node follows the ``episode`` events (``clis run`` waits for that
+    #: subscription before the robot starts; the blob detector follows none)
+    follows_episodes: bool = True
 
     def argv(self, params_files: list[Path]) -> list[str]:
         """``EXE --ros-args [--params-file F]... -p KEY:=VALUE ...`` (what ``ros2 run`` runs)."""
@@ -81,6 +84,9 @@ class GraphPlan:
     """The children of one run, in start order (the robot interface last)."""
 
     children: list[Child] = field(default_factory=list)
+    #: The namespace of the CLIS graph: '' (the root), or ``/clis`` on a robot of the ROS graph
+    #: (``--robot ros``), whose own topics (``odom``, ``cmd_vel``...) are at its root
+    namespace: str = ''
 
     def by_name(self, name: str) -> Child:
         return next(c for c in self.children if c.name == name)
@@ -90,7 +96,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
                arena: str = '', robot: str = 'sim', device: str = 'emulator',
                record: str = '', realtime: int = 0, first_episode: int = 1,
                resume_state: str = '', learn_until: int = 0,
-               clis_overrides: dict[str, Any] | None = None) -> GraphPlan:
+               clis_overrides: dict[str, Any] | None = None, profile: str = '') -> GraphPlan:
     """The nodes of ``condition``, with the parameters ``clis run`` gives each;
     ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
     ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
@@ -99,7 +105,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     stood (the checkpoint's ``sim_state``); ``learn_until`` > 0: the learner learns no
     episode that starts once that many are learned in all (``learner_node.episodes``);
     ``clis_overrides``: the CLIS keys of the run's ``--params`` files (dotted), which the nodes
-    read too (the periods the simulator holds at, the arbiter's selection)."""
+    read too (the periods the simulator holds at, the arbiter's selection). ``robot`` 'ros':
+    a robot already on the ROS graph, driven by its ``profile`` (:func:`_plan_ros`)."""
     from clis_learner.core.config import load_clis_params
     from clis_modules.core.arbiter import refuse_bonus
     from clis_modules.core.modules import condition_periods, condition_sensors
@@ -133,6 +140,9 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
             remaps={'__node': name}))
     if robot == 'bridge':
         _plan_bridge(plan, seed, speed, arena, device)
+        return plan
+    if robot == 'ros':
+        _plan_ros(plan, seed, profile)
         return plan
     # the first episode waits until DDS has matched the graph's subscribers of the robot
     # interface (a message sent before is lost to them: the learner's first rewards, a
@@ -176,6 +186,28 @@ def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: s
     plan.children.append(Child('bridge', 'cr_bridge', 'bridge', {
         'node.device': device, 'node.seed': seed, 'node.arena_file': arena,
         'node.start': 'wander', 'node.wait_for_learner': True}, restart='never'))
+
+
+#: The namespace of the CLIS graph on a robot of the ROS graph.
+ROS_NAMESPACE = '/clis'
+
+
+def _plan_ros(plan: GraphPlan, seed: int, profile: str) -> None:
+    """A robot already on the ROS graph (its ``odom``, ``scan``, ``image_raw`` and
+    ``camera_info`` at the root or under its profile's namespace; ``cmd_vel`` taken): the CLIS
+    graph in :data:`ROS_NAMESPACE`, with the blob detector (the robot's image to the ``camera``
+    bearings) and the robot adapter (cr_bridge ``robot``: the robot interface from the robot's
+    own sensors, episodes and safety) as the robot interface. Both follow the robot's
+    ``/clock``; the robot does not wait for the graph (no lockstep)."""
+    plan.namespace = ROS_NAMESPACE
+    for child in plan.children:
+        child.remaps['__ns'] = ROS_NAMESPACE
+    plan.children.append(Child('detector', 'clis_modules', 'detector', {
+        'profile': profile, 'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE},
+        follows_episodes=False))
+    plan.children.append(Child('robot', 'cr_bridge', 'robot', {
+        'node.profile': profile, 'node.seed': seed, 'node.wait_for_learner': True,
+        'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE}, restart='never'))
 
 
 def plan_live_view(plan: Any, args: Any) -> str | None:

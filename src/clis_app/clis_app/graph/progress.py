@@ -21,14 +21,14 @@ __all__ = ['Monitor', 'ProgressView']
 class Monitor:
     """An rclpy node of ``clis run``: the learner's progress and the graph's discovery."""
 
-    def __init__(self) -> None:
+    def __init__(self, namespace: str = '') -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         import rclpy
         from rclpy.qos import DurabilityPolicy, QoSProfile
 
         from cr_sim import conversions as rconv
         self.rconv = rconv
-        self.node = rclpy.create_node('clis_run')
+        self.node = rclpy.create_node('clis_run', namespace=namespace or None)
         self.rows: list[dict[str, str]] = []
         self.node.create_subscription(
             DiagnosticArray, 'learner/progress', self._on_progress,

@@ -114,9 +114,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--out', type=Path, help='output folder (default results/run/PRESET-'
                    'CONDITION-seedS-DATE)')
     p.add_argument('--arena', type=str, default='', help='arena file (default config/arena.yaml)')
-    p.add_argument('--robot', choices=('sim', 'bridge'), default='sim',
-                   help="the robot interface: the simulator (default) or the real robot's "
-                        "bridge (cr_bridge), which runs on the robot's clock: real time")
+    p.add_argument('--robot', choices=('sim', 'bridge', 'ros'), default='sim',
+                   help="the robot interface: the simulator (default), the Cyber Rodent's "
+                        "bridge (cr_bridge), which runs on the robot's clock: real time, or "
+                        "'ros': a robot already on the ROS graph (odom, scan, image_raw, "
+                        'cmd_vel), driven by its --profile; the CLIS graph then runs in the '
+                        'namespace /clis (docs/robots.md)')
+    p.add_argument('--profile', default='', metavar='NAME',
+                   help='with --robot ros: the robot profile, a name of config/robots (cr, '
+                        'turtlebot4, husky) or a file')
     p.add_argument('--device', default='emulator', metavar='URL',
                    help="with --robot bridge: 'emulator' (default: cr_bridge's device emulator "
                         'on the loopback; --speed X runs its clock X times wall time) or the '
@@ -197,6 +203,22 @@ def _check_args(args: argparse.Namespace) -> str | None:
     if not 0 <= args.realtime <= top:
         return (f'--realtime {args.realtime}: must be in [1, {top}] (SCHED_FIFO priority of the '
                 f'modules; the simulator and the arbiter run above it; 0 = off)')
+    if args.robot == 'ros':
+        if not args.profile:
+            return '--robot ros drives a robot by its profile: add --profile NAME (cr, ' \
+                   'turtlebot4, husky, or a file)'
+        from clis_base.params import ConfigError
+        from cr_sim.core.profile import load_profile
+        try:
+            load_profile(args.profile)
+        except ConfigError as exc:
+            return f'--profile {args.profile}: {exc}'
+        if args.single_process:
+            return '--single-process runs the simulator only: not with --robot ros'
+        if args.speed != 0:
+            return f"--speed {args.speed}: the robot's own clock sets the pace with --robot ros"
+    elif args.profile:
+        return f'--profile {args.profile}: only with --robot ros'
     if args.robot == 'bridge':
         if args.single_process:
             return '--single-process runs the simulator only: not with --robot bridge'
@@ -292,6 +314,9 @@ def _check_param_values(flat: dict[str, Any], robot: str) -> None:
                                     'recorder': RecorderParams})}
     if robot == 'bridge':
         files['bridge.yaml'] = ('bridge', {'node': BridgeNodeParams, 'contact': ContactParams})
+    elif robot == 'ros':
+        from cr_bridge.robot_node import RobotNodeParams
+        files['bridge.yaml'] = ('robot', {'node': RobotNodeParams})
     else:
         files['sim.yaml'] = ('sim', {'node': SimNodeParams})
     for name, (node, sections) in files.items():
@@ -370,7 +395,7 @@ def main(args: argparse.Namespace) -> int:
                           args.robot, args.device,
                           str(args.record.resolve()) if args.record else '', args.realtime,
                           args.first_episode, args.sim_state, args.version + args.episodes,
-                          args.clis_overrides)
+                          args.clis_overrides, args.profile)
     except ValueError as exc:                        # a module no plug-in or section names
         print(f'clis run: --condition {args.condition}: {exc}', file=sys.stderr)
         return EXIT_CONFIG
@@ -397,7 +422,9 @@ def main(args: argparse.Namespace) -> int:
     say(f'clis run: {args.condition}, {args.preset} preset, seed {args.seed}, '
         f'{args.episodes} episodes, '
         + (f'from episode {args.first_episode}, ' if args.first_episode > 1 else '')
-        + (f'robot bridge ({args.device}), ' if args.robot == 'bridge' else '') +
+        + (f'robot bridge ({args.device}), ' if args.robot == 'bridge' else '')
+        + (f'robot {args.profile} on the ROS graph (CLIS in /clis), ' if args.robot == 'ros'
+           else '') +
         f'speed {"max" if args.speed == 0 else f"x{args.speed:g}"}, ROS_DOMAIN_ID '
         f'{os.environ.get("ROS_DOMAIN_ID")}, out {out}')
     if args.single_process:

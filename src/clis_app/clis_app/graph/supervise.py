@@ -132,14 +132,15 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
     old = signal.signal(signal.SIGINT, lambda signum, _: ctrl_c.remember(signum))
     old_term = signal.signal(signal.SIGTERM, lambda signum, _: ctrl_c.remember(signum))
     sup = Supervisor(plan, out, args.params, args.max_restarts, say)
-    monitor = Monitor()
+    monitor = Monitor(plan.namespace)
     code = EXIT_OK
     try:
         graph = [c for c in plan.children[:-1] if c.args is None]
         for child in graph:                            # everything but the robot interface
             sup.start(child)
         deadline = time.monotonic() + args.startup_timeout
-        missing = monitor.up([c.name for c in graph])
+        followers = [c.name for c in graph if c.follows_episodes]
+        missing = monitor.up(followers)
         while missing and not interrupted():
             if (code := sup.check()) is not None:
                 return code
@@ -148,7 +149,7 @@ def run_processes(plan: GraphPlan, args: argparse.Namespace, out: Path, say,
                     f'{args.startup_timeout} s (see {out}/logs)')
                 return EXIT_STARTUP
             monitor.spin(0.1)
-            missing = monitor.up([c.name for c in graph])
+            missing = monitor.up(followers)
         # (the table's rows counted before the robot interface starts its first episode)
         view = ProgressView(args.episodes, args.block, args.quiet, tty, args.time_limit,
                             out / 'episodes.csv')
