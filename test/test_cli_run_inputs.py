@@ -115,6 +115,12 @@ def cases(i: Path) -> list[tuple[str, list[str], str]]:
         ('--realtime', ['--realtime', 'x'], 'invalid int'),
         ('--real-time', ['--real-time'], 'use --speed 1'),
         ('--single-process', ['--single-process', '--robot', 'bridge'], 'not with --robot'),
+        ('--robot', ['--robot', 'ros'], 'add --profile NAME'),
+        ('--profile', ['--robot', 'ros', '--profile', 'nosuch'], 'nosuch'),
+        ('--profile', ['--profile', 'husky'], 'only with --robot ros'),
+        ('--speed', ['--robot', 'ros', '--profile', 'husky', '--speed', '2'], 'own clock'),
+        ('--arena', ['--robot', 'ros', '--profile', 'husky', '--arena', str(i / 'arena_bad.yaml')],
+         "the profile's"),
     ]
 
 

@@ -34,12 +34,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-import signal
 import sys
 import time
 
-from clis_base.params import ConfigError, as_dict, build
-from clis_base.ros.process import SHUTDOWN_RACES, reraise_unless_shut_down
+from clis_base.params import as_dict, build
+from clis_base.ros.process import SHUTDOWN_RACES, reraise_unless_shut_down, start_node
 from clis_base.ros.ros_params import declare_from_config
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import Odometry
@@ -181,16 +180,7 @@ def main(args: list[str] | None = None) -> None:
         raise SystemExit(0)
     # Ctrl-C and SIGTERM only raise a flag: the loop ends between two steps, never inside
     # rclpy or a PyBullet call
-    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    stopping: list[int] = []
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda sig, frame: stopping.append(sig))
-    try:
-        node = WorldNode()
-    except ConfigError as exc:
-        print(f'husky_world: bad parameter: {exc}', flush=True)
-        rclpy.try_shutdown()
-        raise SystemExit(2) from None
+    node, stopping = start_node('husky_world', WorldNode, args)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

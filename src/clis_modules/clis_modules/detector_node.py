@@ -40,7 +40,8 @@ Parameters: ``profile`` (a name of ``config/robots``, or a profile file; default
 
 from __future__ import annotations
 
-from clis_base.params import ConfigError, build, dataclass, param
+from clis_base.params import build, dataclass, param
+from clis_base.ros.process import start_node
 from clis_base.ros.qos import STREAM_DEPTH
 from clis_base.ros.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.core.profile import RobotProfile, Topics, load_profile
@@ -169,13 +170,7 @@ class DetectorNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     print_help_and_exit_if_asked(__doc__, args)
-    rclpy.init(args=args)
-    try:
-        node = DetectorNode()
-    except ConfigError as exc:
-        print(f'detector: bad parameter: {exc}', flush=True)
-        rclpy.try_shutdown()
-        raise SystemExit(2) from None
+    node, _ = start_node('detector', DetectorNode, args, flag_signals=False)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

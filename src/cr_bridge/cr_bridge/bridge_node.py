@@ -31,11 +31,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import math
-import signal
 import time
 
-from clis_base.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from clis_base.ros.process import reraise_unless_shut_down
+from clis_base.params import build, config_dir, dataclass, param, ros_parameters
+from clis_base.ros.process import reraise_unless_shut_down, start_node
 from clis_base.ros.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.core.arena import load_arena
 from cr_sim.core.episodes import Event
@@ -50,7 +49,12 @@ from rclpy.node import Node
 
 from cr_bridge import conversions as bconv
 from cr_bridge.core import protocol as proto
-from cr_bridge.core.episode import START_MODES, ContactParams, Reading, RobotEpisodes
+from cr_bridge.core.episode import (
+    ContactParams,
+    Reading,
+    RobotEpisodes,
+    RobotSideParams,
+)
 from cr_bridge.core.safety import Backoff, CommandGuard, DeviceClock
 from cr_bridge.transport import LinkError, open_link
 from cr_sim import conversions as conv
@@ -59,7 +63,7 @@ __all__ = ['BridgeNodeParams', 'BridgeNode', 'run', 'main']
 
 
 @dataclass(frozen=True)
-class BridgeNodeParams:
+class BridgeNodeParams(RobotSideParams):
     """ROS-side settings of the bridge (``config/bridge.yaml``, section ``node``)."""
 
     device: str = param(doc='udp://HOST:PORT, a serial device path, or a pyserial URL')
@@ -75,16 +79,8 @@ class BridgeNodeParams:
     backoff_max: float = param(0.01, 60.0, doc='longest reconnect delay [s wall]')
     heartbeat_period: float = param(0.01, 10.0, doc='heartbeat to the device [s wall]')
     diagnostics_period: float = param(0.05, 60.0, doc='diagnostics period [s wall]')
-    start: str = param(choices=START_MODES, doc='where episodes start')
     arena_file: str = param(doc="arena description; '' = config/arena.yaml")
-    seed: int = param(0, 2**31 - 1, doc='seed of the wander steering noise')
     cmd_vel_stamped: bool = param(doc='cmd_vel is TwistStamped (true) or Twist (false)')
-    wait_for_learner: bool = param(doc='wander until learner/progress reports the last '
-                                   'episode learned')
-    learner_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for the learner')
-    markers_period: float = param(0.01, 60.0, doc='robot marker period [s]')
-    map_frame: str = param(doc='fixed frame of odom and markers')
-    base_frame: str = param(doc='robot body frame')
 
 
 class BridgeNode(Node):
@@ -389,18 +385,8 @@ def run(node: BridgeNode, executor: SingleThreadedExecutor, period: float = 0.00
 def main(args: list[str] | None = None) -> None:
     print_help_and_exit_if_asked(__doc__, args)
     # Ctrl-C and SIGTERM only raise a flag: the loop ends between two iterations and the
-    # motors get their zero command, never an exception from inside rclpy (rclpy's own
-    # handler shut the context down under the executor, or interrupted a Task half-made)
-    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    stopping: list[int] = []
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda sig, frame: stopping.append(sig))
-    try:
-        node = BridgeNode()
-    except ConfigError as exc:
-        print(f'bridge: bad parameter: {exc}', flush=True)
-        rclpy.try_shutdown()
-        raise SystemExit(2) from None
+    # motors get their zero command, never an exception from inside rclpy
+    node, stopping = start_node('bridge', BridgeNode, args)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

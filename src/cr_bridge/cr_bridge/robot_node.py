@@ -40,11 +40,10 @@ the robot to acknowledge it (``node.exit_timeout`` wall seconds at most) before 
 from __future__ import annotations
 
 import math
-import signal
 import time
 
 from clis_base.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
-from clis_base.ros.process import reraise_unless_shut_down
+from clis_base.ros.process import reraise_unless_shut_down, start_node
 from clis_base.ros.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.core.arena import load_arena
 from cr_sim.core.episodes import Event
@@ -61,7 +60,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
 from cr_bridge import conversions as bconv
-from cr_bridge.core.episode import START_MODES, RobotEpisodes
+from cr_bridge.core.episode import RobotEpisodes, RobotSideParams
 from cr_bridge.core.ros_robot import (
     INTERFACE_TOPICS,
     ROBOT_TOPICS,
@@ -86,7 +85,7 @@ INPUTS = ('odom', 'scan', 'camera')
 
 
 @dataclass(frozen=True)
-class RobotNodeParams:
+class RobotNodeParams(RobotSideParams):
     """ROS-side settings of the robot node (``config/bridge.yaml``, node ``robot``, section
     ``node``)."""
 
@@ -99,14 +98,6 @@ class RobotNodeParams:
     watchdog: float = param(0.01, 60.0, doc='no wheels_cmd for this long -> zero command [s]')
     exit_timeout: float = param(0.0, 10.0, doc='at exit, wait at most this long for the robot '
                                 'to acknowledge the zero command; 0 = do not wait [s wall]')
-    start: str = param(choices=START_MODES, doc='where episodes start')
-    seed: int = param(0, 2**31 - 1, doc='seed of the wander steering noise')
-    wait_for_learner: bool = param(doc='wander until learner/progress reports the last '
-                                   'episode learned')
-    learner_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for the learner')
-    markers_period: float = param(0.01, 60.0, doc='robot marker period [s]')
-    map_frame: str = param(doc='fixed frame of odom and markers')
-    base_frame: str = param(doc='robot body frame')
 
 
 class RobotNode(Node):
@@ -381,18 +372,9 @@ class RobotNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     print_help_and_exit_if_asked(__doc__, args)
-    # Ctrl-C and SIGTERM only raise a flag: the loop ends between two callbacks and the robot
-    # gets its zero command from a live context (rclpy's own handler would shut it down first)
-    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    stopping: list[int] = []
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda sig, frame: stopping.append(sig))
-    try:
-        node = RobotNode()
-    except ConfigError as exc:
-        print(f'robot: bad parameter: {exc}', flush=True)
-        rclpy.try_shutdown()
-        raise SystemExit(2) from None
+    # Ctrl-C and SIGTERM only raise a flag: the robot gets its zero command from a live
+    # context
+    node, stopping = start_node('robot', RobotNode, args)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

@@ -15,6 +15,14 @@ the graph's subscribers of the robot interface are matched (a message published 
 never delivered to them); with ``node.wait_for_learner`` each episode waits for the learner;
 with ``node.lockstep`` each decision instant waits for its command.
 
+World mode (``node.episodes: false``): a plain robot world for the standard path, where
+another node (the robot adapter, ``ros2 run cr_bridge robot``) makes the episodes from the
+robot's own sensors: one unending run from the first start, the robot driving under
+``cmd_vel`` and never teleported, the goal and the time limit ending nothing; no ``episode``
+or ``reward`` messages, ``reset`` does nothing, ``node.wait_for_learner`` and ``node.lockstep``
+are ignored. ``/clock``, the sensors (and with ``node.standard_topics`` ``image_raw`` and
+``scan``) and ``odom`` as always.
+
 Safety: every command goes through :func:`cr_sim.core.robot.clamp_wheels` (NaN/inf -> 0,
 clipped to the wheel limit); a command older than ``node.watchdog`` seconds of sim time is
 replaced by a stop.
@@ -93,6 +101,11 @@ class SimNodeParams:
     base_frame: str = param(doc='robot body frame')
     standard_topics: bool = param(doc="also publish the sensors as a robot's standard topics "
                                   "(image_raw, scan) while someone subscribes to them")
+    episodes: bool = param(doc='serve episodes (starts, ends, rewards); false = a plain robot '
+                           'world for the standard path: one unending run from the first '
+                           'start, never teleported, the goal and the time limit end nothing, '
+                           'no episode or reward messages, reset does nothing, '
+                           'wait_for_learner and lockstep ignored')
     executor: str = param(choices=('lean', 'single'), doc="rclpy executor: 'lean' "
                           "(clis_base.ros.executor.LeanExecutor) or 'single' "
                           '(SingleThreadedExecutor)')
@@ -135,14 +148,15 @@ class SimNode(Node):
             self.arena, self.params, self.gate, seed=cfg.seed, start=cfg.start,
             first_episode=cfg.first_episode, resume_state=cfg.resume_state,
             auto_reset=cfg.auto_reset, watchdog=cfg.watchdog,
-            decision_periods=cfg.lockstep_periods, readings=cfg.readings)
+            decision_periods=cfg.lockstep_periods, readings=cfg.readings,
+            episodes=cfg.episodes)
         self.sim = self.core.sim
         self.wheel_base = self.params.robot.wheel_base
         self.next_marker_t = 0.0
         self._round_trip_log = (open(cfg.round_trip_log, 'a', buffering=1 << 16)
                                 if cfg.round_trip_log else None)
         open_robot_interface(self, self.arena, cfg.map_frame, cfg.cmd_vel_stamped,
-                             cfg.wait_for_learner, cfg.command)
+                             self.gate.wait_for_learner, cfg.command)   # off in world mode
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
         # a robot's standard topics (image_raw, scan), built only while someone subscribes
         self.standard = (StandardTopics(self, self.arena, 'cr', sensors=self.params.sensors,
@@ -190,6 +204,9 @@ class SimNode(Node):
             self._round_trip_log.write(f'{held:.6f} {rtt * 1e3:.4f}\n')
 
     def _on_reset(self, request, response):
+        if not self.core.episodes:
+            response.message = 'node.episodes is false: a world has no episode to reset'
+            return response
         self._publish_event(self.core.reset())
         self._start_episode()
         response.success = True
@@ -220,8 +237,9 @@ class SimNode(Node):
         if res is None:    # auto_reset off: hold still until `reset`, sim time goes on
             self.pub_clock.publish(conv.clock_msg(self.core.sim_time))
             return
-        self.pub_reward.publish(conv.reward_msg(res.reward, self.core.book.ret,
-                                                self.core.episode, self.core.sim_time))
+        if self.core.episodes:
+            self.pub_reward.publish(conv.reward_msg(res.reward, self.core.book.ret,
+                                                    self.core.episode, self.core.sim_time))
         self._publish_state(readings=not res.done)
         ev, start_next = self.core.finish(res)
         self._publish_event(ev)

@@ -142,7 +142,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         _plan_bridge(plan, seed, speed, arena, device)
         return plan
     if robot == 'ros':
-        _plan_ros(plan, seed, profile)
+        _plan_ros(plan, seed, profile, speed, arena)
         return plan
     # the first episode waits until DDS has matched the graph's subscribers of the robot
     # interface (a message sent before is lost to them: the learner's first rewards, a
@@ -192,16 +192,26 @@ def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: s
 ROS_NAMESPACE = '/clis'
 
 
-def _plan_ros(plan: GraphPlan, seed: int, profile: str) -> None:
+def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
+              arena: str = '') -> None:
     """A robot already on the ROS graph (its ``odom``, ``scan``, ``image_raw`` and
     ``camera_info`` at the root or under its profile's namespace; ``cmd_vel`` taken): the CLIS
     graph in :data:`ROS_NAMESPACE`, with the blob detector (the robot's image to the ``camera``
     bearings) and the robot adapter (cr_bridge ``robot``: the robot interface from the robot's
     own sensors, episodes and safety) as the robot interface. Both follow the robot's
-    ``/clock``; the robot does not wait for the graph (no lockstep)."""
+    ``/clock``; the robot does not wait for the graph (no lockstep). A profile whose robot is
+    our simulator (its ``simulator: cr_sim``): the simulator too, at the root, as a plain world
+    (``node.episodes`` false: the adapter makes the episodes) that publishes its camera image
+    (``node.standard_topics``), at ``speed``."""
+    from cr_sim.core.profile import load_profile
     plan.namespace = ROS_NAMESPACE
     for child in plan.children:
         child.remaps['__ns'] = ROS_NAMESPACE
+    if load_profile(profile).simulator == 'cr_sim':  # the robot: the simulator, at the root
+        plan.children.append(Child('sim', 'cr_sim', 'sim', {
+            'node.episodes': False, 'node.standard_topics': True,
+            'node.speed_factor': float(speed), 'node.seed': seed, 'node.arena_file': arena,
+            'node.start': 'A'}, restart='never', follows_episodes=False))
     plan.children.append(Child('detector', 'clis_modules', 'detector', {
         'profile': profile, 'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE},
         follows_episodes=False))

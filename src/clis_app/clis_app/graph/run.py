@@ -215,8 +215,13 @@ def _check_args(args: argparse.Namespace) -> str | None:
             return f'--profile {args.profile}: {exc}'
         if args.single_process:
             return '--single-process runs the simulator only: not with --robot ros'
-        if args.speed != 0:
+        if load_profile(args.profile).simulator == 'cr_sim':
+            args.speed = args.speed or 1.0    # the simulator as the robot: it does not wait
+        elif args.speed != 0:
             return f"--speed {args.speed}: the robot's own clock sets the pace with --robot ros"
+        if args.arena:
+            return f"--arena {args.arena}: with --robot ros the arena is the profile's " \
+                   '(its arena section)'
     elif args.profile:
         return f'--profile {args.profile}: only with --robot ros'
     if args.robot == 'bridge':
@@ -389,6 +394,9 @@ def main(args: argparse.Namespace) -> int:
     # the graph's nodes (and this process's monitor) pass their data through shared memory
     from clis_app.graph.ros_env import use_graph_profile
     use_graph_profile()
+    if args.robot == 'ros':              # the layout and the features at the robot's size
+        from clis_app.graph.robot_ros import robot_files
+        args.arena, robot_params = robot_files(args.profile, out, write=False)
     try:
         plan = plan_graph(args.condition, args.seed, out, args.speed,
                           str(args.resume.resolve()) if args.resume else '', args.arena,
@@ -409,6 +417,9 @@ def main(args: argparse.Namespace) -> int:
             print(f'clis run: {error}', file=sys.stderr)
             return EXIT_CONFIG
     out.mkdir(parents=True, exist_ok=True)              # every input checked: now write
+    if args.robot == 'ros' and robot_params is not None:
+        robot_files(args.profile, out)
+        args.params = [*args.params, robot_params]
     tty = sys.stderr.isatty() and not args.quiet
 
     def say(text: str) -> None:

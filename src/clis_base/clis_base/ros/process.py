@@ -35,11 +35,14 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 import gc
 import os
+import signal
 import struct
 import time
+from typing import Any
 
 import rclpy
 
+from clis_base.params import ConfigError
 from clis_base.ros.rclpy_private import RCLError
 
 __all__ = ['CPU_WAKEUP_DEVICE', 'SHUTDOWN_RACES', 'RCLError', 'hold_cpu_wakeup_latency',
@@ -164,3 +167,26 @@ def realtime_logged(priority: int, logger) -> bool:
     ok, said = realtime(priority)
     (logger.info if ok else logger.warning)(said)
     return ok
+
+
+def start_node(name: str, factory: Callable[[], Any], args: list[str] | None = None,
+               flag_signals: bool = True) -> tuple[Any, list[int]]:
+    """``rclpy.init``, then the node ``factory()`` makes; a bad parameter (ConfigError): one line
+    ``NAME: bad parameter: ...`` and exit code 2. ``flag_signals``: Ctrl-C and SIGTERM only
+    append to the returned list (the node's loop ends between two callbacks, and a robot gets
+    its zero command from a live context: rclpy's own handler would shut the context down
+    under the executor first); else rclpy's own handler (KeyboardInterrupt)."""
+    stopping: list[int] = []
+    if flag_signals:
+        rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, lambda sig, frame: stopping.append(sig))
+    else:
+        rclpy.init(args=args)
+    try:
+        node = factory()
+    except ConfigError as exc:
+        print(f'{name}: bad parameter: {exc}', flush=True)
+        rclpy.try_shutdown()
+        raise SystemExit(2) from None
+    return node, stopping

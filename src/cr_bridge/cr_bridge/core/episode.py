@@ -43,12 +43,29 @@ from cr_sim.core.sim import EpisodeParams
 from cr_sim.core.wander import WanderParams, WanderPolicy
 import numpy as np
 
-__all__ = ['ContactParams', 'Reading', 'Event', 'Step', 'RobotEpisodes', 'START_MODES']
+__all__ = ['RobotSideParams', 'ContactParams', 'Reading', 'Event', 'Step', 'RobotEpisodes',
+           'START_MODES']
 
 #: ``'wander'``: every episode starts where the wander policy leaves the robot (as in
 #: ``clis run``); ``'here'``: the first one starts at once where the robot stands, the next
 #: ones after the wander.
 START_MODES = ('wander', 'here')
+
+
+@frozen_dataclass(frozen=True)
+class RobotSideParams:
+    """What every node that is a robot's interface by its own sensors sets (the bridge's and
+    the robot adapter's ``node`` sections of ``config/bridge.yaml``): episodes, the learner
+    gate, frames."""
+
+    start: str = param(choices=START_MODES, doc='where episodes start')
+    seed: int = param(0, 2**31 - 1, doc='seed of the wander steering noise')
+    wait_for_learner: bool = param(doc='wander until learner/progress reports the last '
+                                   'episode learned')
+    learner_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for the learner')
+    markers_period: float = param(0.01, 60.0, doc='robot marker period [s]')
+    map_frame: str = param(doc='fixed frame of odom and markers')
+    base_frame: str = param(doc='robot body frame')
 
 
 @frozen_dataclass(frozen=True)

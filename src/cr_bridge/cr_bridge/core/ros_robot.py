@@ -22,11 +22,11 @@ The adapter (its node is still to come) drives a robot that is already on the RO
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 import math
 
 from clis_base.params import ConfigError, build
-from cr_sim.core.arena import Arena, Box
+from cr_sim.core.arena import Arena, Box, scaled_arena  # noqa: F401 - its users' one import
 from cr_sim.core.profile import RobotProfile, ScanSpec, Topics
 from cr_sim.core.robot import twist_to_wheels
 from cr_sim.core.sim import EpisodeParams
@@ -347,23 +347,3 @@ def finite_or_zero(u: Sequence[float]) -> np.ndarray:
     if a.shape != (2,) or not np.all(np.isfinite(a)):
         return np.zeros(2)
     return a
-
-
-def scaled_arena(arena: Arena, scale: float) -> Arena:
-    """``arena`` with every length multiplied by ``scale`` (about the origin: the layout a
-    profile's ``arena.size`` describes); the same object for ``scale`` 1."""
-    if scale == 1.0:
-        return arena
-    s = float(scale)
-
-    def box(b: Box) -> Box:
-        return replace(b, center=(b.center[0] * s, b.center[1] * s),
-                       size=(b.size[0] * s, b.size[1] * s))
-    d = arena.destination
-    return replace(
-        arena, bounds=tuple(v * s for v in arena.bounds),
-        destination=replace(d, x=d.x * s, y=d.y * s, goal_radius=d.goal_radius * s),
-        short_obstacles=tuple(box(b) for b in arena.short_obstacles),
-        tall_obstacles=tuple(box(b) for b in arena.tall_obstacles),
-        landmarks=tuple(replace(m, x=m.x * s, y=m.y * s) for m in arena.landmarks),
-        starts=tuple(replace(st, x=st.x * s, y=st.y * s) for st in arena.starts))

@@ -15,7 +15,7 @@ frame. The walls are the border of the floor, :attr:`Arena.bounds`.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 import os
 from pathlib import Path
@@ -29,7 +29,7 @@ from cr_sim.core.robot import load_robot_params
 
 __all__ = [
     'ArenaError', 'Box', 'Destination', 'Landmark', 'Start', 'Arena', 'load_arena',
-    'parse_arena', 'ARENA_KEYS', 'FLOOR_KEYS',
+    'parse_arena', 'scaled_arena', 'arena_data', 'ARENA_KEYS', 'FLOOR_KEYS',
 ]
 
 #: Top-level keys of an arena file (all required; ``floor`` may replace ``size``).
@@ -460,3 +460,45 @@ def load_arena(path: str | os.PathLike | None = None, robot_radius: float | None
     except ConfigError as exc:
         raise ArenaError(str(exc)) from None
     return parse_arena(data, robot_radius, source=str(p))
+
+
+def scaled_arena(arena: Arena, scale: float) -> Arena:
+    """``arena`` with every length multiplied by ``scale`` about the origin (the layout at a
+    robot's size: a robot profile's ``arena.size``); the same object for ``scale`` 1."""
+    if scale == 1.0:
+        return arena
+    s = float(scale)
+
+    def box(b: Box) -> Box:
+        return replace(b, center=(b.center[0] * s, b.center[1] * s),
+                       size=(b.size[0] * s, b.size[1] * s))
+    d = arena.destination
+    return replace(
+        arena, bounds=tuple(v * s for v in arena.bounds),
+        destination=replace(d, x=d.x * s, y=d.y * s, goal_radius=d.goal_radius * s),
+        short_obstacles=tuple(box(b) for b in arena.short_obstacles),
+        tall_obstacles=tuple(box(b) for b in arena.tall_obstacles),
+        landmarks=tuple(replace(m, x=m.x * s, y=m.y * s) for m in arena.landmarks),
+        starts=tuple(replace(st, x=st.x * s, y=st.y * s) for st in arena.starts))
+
+
+def arena_data(arena: Arena) -> dict[str, Any]:
+    """``arena`` in the arena-file format (:func:`parse_arena` reads it back to an equal
+    arena): the floor as a rectangle, then every object."""
+    x0, y0, x1, y1 = arena.bounds
+
+    def box(b: Box) -> dict[str, Any]:
+        return {'name': b.name, 'center': list(b.center), 'size': list(b.size)}
+    d = arena.destination
+    square = x1 - x0 == y1 - y0 and x0 == -x1 and y0 == -y1
+    return {
+        **({'size': x1 - x0} if square else
+           {'floor': {'width': x1 - x0, 'height': y1 - y0, 'origin': [x0, y0]}}),
+        'destination': {'x': d.x, 'y': d.y, 'goal_radius': d.goal_radius},
+        'short_obstacles': [box(b) for b in arena.short_obstacles],
+        'tall_obstacles': [box(b) for b in arena.tall_obstacles],
+        'landmarks': [{'name': m.name, 'colour': m.colour, 'x': m.x, 'y': m.y}
+                      for m in arena.landmarks],
+        'starts': {st.name: {'x': st.x, 'y': st.y, 'heading_deg': st.heading_deg}
+                   for st in arena.starts},
+    }

@@ -390,6 +390,9 @@ class RobotProfile:
     """One robot, as ``config/robots/NAME.yaml`` describes it (module docstring)."""
 
     description: str = param(doc='one line: the robot and where it runs')
+    simulator: str = param(choices=('', 'cr_sim'), doc="'' = a robot already on the ROS "
+                           "graph; 'cr_sim' = our simulator, which clis run --robot ros starts "
+                           "as a plain world (its episodes are the robot adapter's)")
     body: Body = param(doc='section body')
     topics: Topics = param(doc='section topics')
     scan: ScanSpec = param(doc='section scan')

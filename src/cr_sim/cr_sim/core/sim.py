@@ -25,7 +25,9 @@ Model
 * Reward of a step: ``reward_collision`` on a collision, plus ``reward_goal`` when the centre
   ends within ``goal_radius`` of the destination (episode ends, ``reached``), else 0. The
   episode also ends (``timeout``, not reached) after ``time_limit`` s. ``step`` after the end
-  raises: call ``reset``.
+  raises: call ``reset``. An ``endless`` simulator has no end (a robot world that runs on):
+  the goal and the time limit end nothing, ``reached``, ``timeout`` and ``done`` stay False
+  and the goal's reward is never given (a new contact's still is).
 * IR: ``n_ir`` beams from the body surface at ``ir_angles_deg`` from the heading; each reads
   the distance from the surface to the first wall/obstacle (short or tall) along the beam,
   ``+ N(0, ir_noise_sigma^2)``, clipped to ``[0, ir_range]``; ``ir_range`` when nothing is
@@ -85,6 +87,7 @@ IGNORED_SECTIONS = ('node',)
 _N_BISECT = 20          # halvings of the contact search: resolution 2^-20 of a step
 _MAX_TRIES = 100_000    # rejection sampling of a random free start
 _NOISE_BLOCK = 256      # observations' noise drawn at a time
+_ENDLESS_K = 2**62      # the step count an endless simulator never reaches (int64)
 
 
 # ------------------------------------------------------------------------------------------
@@ -248,9 +251,13 @@ class Simulator:
         Robot, sensors, episode and wander parameters.
     rng : np.random.Generator
         The only source of randomness (start poses, wander, and via a spawned child, noise).
+    endless : bool
+        No episode end (module docstring): the robot drives on past the goal and the time
+        limit.
     """
 
-    def __init__(self, arena: Arena, params: SimParams, rng: np.random.Generator) -> None:
+    def __init__(self, arena: Arena, params: SimParams, rng: np.random.Generator, *,
+                 endless: bool = False) -> None:
         if not isinstance(rng, np.random.Generator):
             raise TypeError('rng must be a numpy.random.Generator')
         arena.check(params.robot.radius)
@@ -271,12 +278,16 @@ class Simulator:
         self._dt = ep.dt
         # integer step count of the time limit (t = k dt, no accumulated rounding)
         self._k_max = max(1, math.ceil(ep.time_limit / ep.dt - 1e-9))
+        self.endless = endless
         self._boxes, self._half = arena.gap_boxes()   # a non-square floor: walls as boxes
         # for the kernel: numba cannot iterate an empty tuple; a box at infinity is never near
         self._kernel_boxes = self._boxes or ((math.inf,) * 4,)
         dest = arena.destination
         self._dest = (dest.x, dest.y)
         self._goal_r2 = dest.goal_radius ** 2
+        # what ends an episode: the step count and the goal's squared radius (endless: never)
+        self._k_end, self._end_r2 = (_ENDLESS_K, -1.0) if endless else (self._k_max,
+                                                                          self._goal_r2)
         self._reward_goal, self._reward_collision = ep.reward_goal, ep.reward_collision
         self._tol = ep.contact_tolerance
 
@@ -607,12 +618,12 @@ class Simulator:
         # (reached) or the time limit
         (self._x, self._y, self._th, self._touching, self._k, steps, collision,
          reached) = kernels.hold(
-            self._x, self._y, self._th, self._touching, self._k, self._k_max, u_left, u_right,
+            self._x, self._y, self._th, self._touching, self._k, self._k_end, u_left, u_right,
             n, self._vmax, self._b, self._dt, self._r, self._kernel_boxes, self._half,
-            self._tol, _N_BISECT, self._dest[0], self._dest[1], self._goal_r2, self._held)
+            self._tol, _N_BISECT, self._dest[0], self._dest[1], self._end_r2, self._held)
         self._wl, self._wr = self._held[steps - 1].tolist()
         self._tick += steps
-        timeout = (not reached) and self._k >= self._k_max
+        timeout = (not reached) and self._k >= self._k_end
         reward = 0.0
         if collision:
             reward += self._reward_collision

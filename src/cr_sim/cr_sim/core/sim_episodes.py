@@ -25,6 +25,15 @@ its values into messages and its inputs into calls:
   the learner gate before each start, lockstep at the decision instants, and whether the clock
   may run unwatched between them (:attr:`SimEpisodes.quiet`).
 
+**World mode** (``episodes=False``, the node's ``node.episodes: false``): a plain robot world
+for a node that makes the episodes itself from the robot's own sensors (the robot adapter of
+the standard path). One unending run from the first start (the start rule as above): an
+``endless`` :class:`~cr_sim.core.sim.Simulator` (the goal and the time limit end nothing),
+never teleported (:meth:`SimEpisodes.start` places the robot once, :meth:`SimEpisodes.reset`
+does nothing), no events, no rewards summed; the learner gate and lockstep are switched off
+(the graph gate before the run still holds). The clock, the commands, the watchdog and the
+readings are as above.
+
 Pure: no ROS; wall time is read from an injected clock (``time.monotonic`` by default).
 """
 
@@ -84,6 +93,9 @@ class SimEpisodes:
         ``instants`` readings.
     readings : str
         One of :data:`READINGS`.
+    episodes : bool
+        Serve episodes (else world mode, module docstring: ``gate``'s learner gate and
+        lockstep are switched off).
     clock : callable
         Wall time [s], monotonic.
 
@@ -97,7 +109,7 @@ class SimEpisodes:
                  start: str = 'A', first_episode: int = 1, resume_state: str = '',
                  auto_reset: bool = True, watchdog: float = 2.0,
                  decision_periods: Sequence[float] = (), readings: str = 'tick',
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 episodes: bool = True, clock: Callable[[], float] = time.monotonic) -> None:
         self.arena = arena
         self.params = params
         self.gate = gate
@@ -107,9 +119,14 @@ class SimEpisodes:
         self.watchdog = watchdog
         self.readings = readings
         self.dt = params.episode.dt
+        self.episodes = episodes
+        if not episodes:                    # world mode: nothing waits for a learner
+            gate.wait_for_learner = gate.lockstep = False
+        self.placed = False                 # world mode: the robot stands at its start
         # the headless runner's streams: the simulator (seed, 0) and the starts (seed, 1), each
         # continuous over the episodes (a resumed run sets them from resume_state)
-        self.sim = Simulator(arena, params, np.random.default_rng([seed, 0]))
+        self.sim = Simulator(arena, params, np.random.default_rng([seed, 0]),
+                             endless=not episodes)
         self.start_rng = np.random.default_rng([seed, 1])
         periods = [p for p in decision_periods if p > 0.0]
         self.clock = DecisionClock(periods, self.dt) if periods else None
@@ -170,16 +187,22 @@ class SimEpisodes:
         subscribers are matched; else the graph gate holds it)."""
         return self.book.first(self.now(), ready)
 
-    def start(self) -> Event:
+    def start(self) -> Event | None:
         """Start the next episode: its ``start`` event (``episode``, ``start``, ``pose``,
         ``params_version`` under the learner gate, ``dt``, then ``agent_state`` if the learner
-        announced one for it (:meth:`~cr_sim.core.gate.EpisodeGate.announced`))."""
+        announced one for it (:meth:`~cr_sim.core.gate.EpisodeGate.announced`)). World mode:
+        place the robot at its start the first time, nothing after; no event (None)."""
+        if not self.episodes and self.placed:
+            return None
         if self.book.started_any:           # not this run's first: one tick after the end
             self.time_offset = self._next_offset()
         start, heading = draw_start(self.start_mode, self.arena, self.start_rng)
         self.sim.reset(start=start, heading=heading)
         self.u[:] = 0.0
         self.u_time = -np.inf
+        if not self.episodes:
+            self.placed = True
+            return None
         ev = self.book.start(self.sim_time, start=start,
                              pose=' '.join(f'{p:.3f}' for p in self.sim.pose))
         ev.values['dt'] = repr(self.dt)
@@ -189,14 +212,15 @@ class SimEpisodes:
 
     def step(self) -> StepResult | None:
         """One tick: the command in force (a stop after ``watchdog``) for ``dt``, its reward
-        into the return; None when the episode is over and waits for :meth:`reset` (the clock
-        runs on by a tick)."""
+        into the return (not in world mode: no rewards); None when the episode is over and
+        waits for :meth:`reset` (the clock runs on by a tick)."""
         if self.sim.done:
             self.time_offset += self.dt
             return None
         u = self.u if self.sim.t - self.u_time <= self.watchdog else np.zeros(2)
         res = self.sim.step(u)
-        self.book.add(res.reward)
+        if self.episodes:
+            self.book.add(res.reward)
         return res
 
     def end(self, name: str) -> Event | None:
@@ -216,7 +240,10 @@ class SimEpisodes:
 
     def reset(self) -> Event | None:
         """End the running episode from outside (the ``reset`` service; the next one starts
-        at once, whatever the clock held for): its event, None if none runs."""
+        at once, whatever the clock held for): its event, None if none runs. World mode:
+        nothing (None)."""
+        if not self.episodes:
+            return None
         self.gate.state = 'run'
         return self.end('reset')
 

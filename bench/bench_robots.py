@@ -1,0 +1,196 @@
+"""CLIS through the standard path: learning on the Husky in PyBullet, or on our simulator.
+
+    python bench/bench_robots.py [--profile husky] [--conditions view,async] [--seeds 3]
+                                 [--episodes 24] [--rtf 3] [--jobs 2] [--out docs/figures/robots]
+
+Each run is the robot and ``clis run --robot ros --profile P --condition C --seed S --episodes
+N`` (the CLIS graph in ``/clis``, the blob detector, the robot adapter), on a ROS_DOMAIN_ID of
+its own, ``--jobs`` runs at a time. The robot: ``--profile husky``, the Husky world
+(``husky_world world``, its clock at ``--rtf`` times wall time), a robot nobody here wrote;
+``--profile cr``, our simulator as a plain world, started by ``clis run`` itself (``--speed
+RTF``). Every run's episodes go to ``OUT/runs/P-C-seedS.json`` (reached, duration, return, who
+acted; the small summaries the figure is drawn from), then ``OUT/P.png`` (the success rate
+per third of the runs, per condition: the mean over seeds with its 95% t-interval, cut to
+[0, 100]) and the
+table (stdout; docs/robots.md) are drawn from them. ``--redraw`` draws them again from the
+saved runs without running anything.
+
+The robot does not wait for the graph (no lockstep): at a higher ``--rtf`` the modules decide
+later in sim time, and the learner says so (records that did not arrive). The table reports
+the wall time of each run and the learner's late-record warnings beside the success rates.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Student's t at 97.5% for n - 1 degrees of freedom (n seeds), for the 95% interval.
+T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
+        9: 2.262}
+
+
+def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, domain: int,
+            out: Path, episode_keys: dict) -> dict:
+    """One run (module docstring): its episodes and costs. ``episode_keys``: the profile's
+    ``episode`` keys this benchmark sets (a copy of the profile is run)."""
+    env = {**os.environ, 'ROS_DOMAIN_ID': str(domain)}
+    with tempfile.TemporaryDirectory() as tmp:
+        from clis_base.params import config_dir
+        import yaml
+        data = yaml.safe_load((config_dir() / 'robots' / f'{profile}.yaml').read_text())
+        data['episode'].update(episode_keys)
+        profile_file = Path(tmp) / f'{profile}.yaml'
+        profile_file.write_text(yaml.safe_dump(data))
+        world = (subprocess.Popen(
+            [sys.executable, '-m', 'husky_world.world_node', '--ros-args', '-p',
+             f'real_time_factor:={rtf!r}'], env=env, stdout=subprocess.DEVNULL,
+            stderr=subprocess.STDOUT) if profile == 'husky' else None)
+        speed = [] if world is not None else ['--speed', repr(rtf)]
+        t0 = time.monotonic()
+        try:
+            proc = subprocess.run(
+                [sys.executable, '-m', 'clis_app.cli', '--domain-id', str(domain), 'run',
+                 '--robot', 'ros', '--profile', str(profile_file), '--condition', condition,
+                 '--seed',
+                 str(seed), '--episodes', str(episodes), '--out', str(Path(tmp) / 'run'),
+                 '--quiet', *speed], env=env, capture_output=True, text=True)
+        finally:
+            if world is not None:
+                world.send_signal(2)
+                try:
+                    world.wait(10)
+                except subprocess.TimeoutExpired:
+                    world.kill()
+        wall = time.monotonic() - t0
+        if proc.returncode != 0:
+            raise RuntimeError(f'{condition} seed {seed}: clis run exited '
+                               f'{proc.returncode}\n{proc.stderr[-2000:]}')
+        with open(Path(tmp) / 'run' / 'episodes.csv', newline='') as fh:
+            rows = list(csv.DictReader(fh))
+        late = sum(line.count('did not arrive') for line in
+                   (Path(tmp) / 'run' / 'logs' / 'learner.log').read_text().splitlines())
+    run = {'profile': profile, 'condition': condition, 'seed': seed, 'rtf': rtf,
+           'episode_keys': episode_keys, 'wall_s': round(wall, 1),
+           'late_warnings': late,
+           'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
+                         'duration': float(r['duration']), 'ret': float(r['ret']),
+                         'behaviour': r['behaviour']} for r in rows]}
+    (out / 'runs').mkdir(parents=True, exist_ok=True)
+    (out / 'runs' / f'{profile}-{condition}-seed{seed}.json').write_text(
+        json.dumps(run, indent=1))
+    return run
+
+
+def thirds(run: dict) -> list[float]:
+    """The success rate of each third of the run's episodes."""
+    eps = [e['reached'] for e in sorted(run['episodes'], key=lambda e: e['episode'])]
+    k = len(eps) // 3
+    return [sum(part) / len(part) if part else math.nan
+            for part in (eps[:k], eps[k:len(eps) - k], eps[len(eps) - k:])]
+
+
+def mean_ci(values: list[float]) -> tuple[float, float, float]:
+    """Mean and its 95% t-interval ``(lo, hi)``, cut to the rates' [0, 1] (the mean itself for
+    one value)."""
+    n = len(values)
+    m = sum(values) / n
+    if n < 2:
+        return m, m, m
+    sd = math.sqrt(sum((v - m) ** 2 for v in values) / (n - 1))
+    h = T975.get(n - 1, 1.96) * sd / math.sqrt(n)
+    return m, max(0.0, m - h), min(1.0, m + h)
+
+
+def report(out: Path, profile: str) -> str:
+    """The table and the figure from ``OUT/runs`` (module docstring)."""
+    runs = [json.loads(p.read_text())
+            for p in sorted((out / 'runs').glob(f'{profile}-*.json'))]
+    by: dict[str, list[dict]] = {}
+    for r in runs:
+        by.setdefault(r['condition'], []).append(r)
+    lines = ['| condition | seeds | episodes | success, first third [95% CI] | last third '
+             '| per seed, first -> last [%] | wall min per run | late-record warnings |',
+             '|---|---|---|---|---|---|---|---|']
+    curves = {}
+    for cond, rs in by.items():
+        t = [thirds(r) for r in rs]
+        first, last = mean_ci([x[0] for x in t]), mean_ci([x[2] for x in t])
+        curves[cond] = [mean_ci([x[i] for x in t]) for i in range(3)]
+        def cell(c: tuple[float, float, float]) -> str:
+            return f'{100 * c[0]:.0f}% [{100 * c[1]:.0f}, {100 * c[2]:.0f}]'
+        per_seed = ', '.join(f'{round(100 * x[0])}->{round(100 * x[2])}' for x in t)
+        lines.append(
+            f'| {cond} | {len(rs)} | {len(rs[0]["episodes"])} | {cell(first)} | {cell(last)} '
+            f'| {per_seed} | {sum(r["wall_s"] for r in rs) / len(rs) / 60:.1f} | '
+            f'{sum(r["late_warnings"] for r in rs)} |')
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(figsize=(5, 3.2))
+        for cond, c in curves.items():
+            err = [[100 * (m - lo) for m, lo, _ in c], [100 * (hi - m) for m, _, hi in c]]
+            ax.errorbar([1, 2, 3], [100 * m for m, _, _ in c], yerr=err,
+                        marker='o', capsize=4, label=f'{cond} ({len(by[cond])} seeds)')
+        ax.set_xticks([1, 2, 3], ['first third', 'middle', 'last third'])
+        ax.set_ylabel('episodes reached [%]')
+        ax.set_ylim(-5, 105)
+        ax.set_title({'husky': 'Husky in PyBullet', 'cr': 'our simulator'}.get(profile, profile)
+                     + ' through the standard path')
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out / f'{profile}.png', dpi=120)
+    except ImportError:
+        pass
+    return '\n'.join(lines)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--profile', default='husky', choices=('husky', 'cr'))
+    p.add_argument('--conditions', default='view,async')
+    p.add_argument('--seeds', type=int, default=3)
+    p.add_argument('--episodes', type=int, default=24)
+    p.add_argument('--rtf', type=float, default=3.0, help='the world clock / wall clock')
+    p.add_argument('--jobs', type=int, default=2, help='runs at a time')
+    p.add_argument('--time-limit', type=float, default=45.0,
+                   help="the profile's episode.time_limit for the runs [s of the robot's clock]")
+    p.add_argument('--wander', type=float, default=5.0,
+                   help="the profile's episode.wander_time for the runs [s]")
+    p.add_argument('--out', type=Path, default=ROOT / 'docs' / 'figures' / 'robots')
+    p.add_argument('--redraw', action='store_true', help='only the table and the figure')
+    args = p.parse_args()
+    if not args.redraw:
+        from concurrent.futures import ThreadPoolExecutor
+        todo = [(c, s) for c in args.conditions.split(',') for s in range(args.seeds)]
+        base = 120 + (os.getpid() % 50) * 2
+        t0 = time.monotonic()
+        with ThreadPoolExecutor(args.jobs) as pool:
+            keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
+            futures = [pool.submit(run_one, args.profile, c, s, args.episodes, args.rtf,
+                                   base + k, args.out, keys)
+                       for k, (c, s) in enumerate(todo)]
+            for f in futures:
+                r = f.result()
+                print(f'{r["condition"]} seed {r["seed"]}: '
+                      f'{sum(e["reached"] for e in r["episodes"])}/{len(r["episodes"])} '
+                      f'reached, {r["wall_s"] / 60:.1f} min', flush=True)
+        print(f'all runs: {(time.monotonic() - t0) / 60:.1f} min on {os.cpu_count()} CPUs '
+              f'({time.strftime("%Y-%m-%d")})')
+    print(report(args.out, args.profile))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,44 @@
+"""What ``clis run --robot ros`` writes for a robot of another size (clis_app.graph.robot_ros):
+the layout at the robot's size, read back as the arena the robot adapter scales itself, and the
+modules' features sized with it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from clis_app.graph.robot_ros import robot_files
+from clis_base.params import load_yaml
+from clis_learner.core.config import load_clis_params
+from cr_sim.core.arena import arena_data, load_arena, parse_arena, scaled_arena
+from cr_sim.core.profile import load_profile
+import pytest
+
+
+def test_an_arena_written_out_reads_back_the_same():
+    arena = load_arena()
+    assert replace(parse_arena(arena_data(arena), 0.11), source=arena.source) == arena
+    big = scaled_arena(arena, 10.0 / 3.0)
+    back = parse_arena(arena_data(big), 0.0)
+    assert back.bounds == pytest.approx((-5.0, -5.0, 5.0, 5.0))
+    assert back.destination.goal_radius == pytest.approx(0.5)
+    assert [(m.x, m.y) for m in back.landmarks] == \
+        [pytest.approx((m.x * 10 / 3, m.y * 10 / 3)) for m in arena.landmarks]
+
+
+def test_the_husky_run_maps_the_arena_at_its_size(tmp_path):
+    arena_file, params_file = robot_files('husky', tmp_path)
+    profile = load_profile('husky')
+    adapter = scaled_arena(load_arena(profile.arena.path(), robot_radius=0.0),
+                           profile.arena.scale(3.0))
+    mapped = load_arena(arena_file, robot_radius=0.0)
+    assert mapped.bounds == pytest.approx(adapter.bounds)
+    assert [(m.x, m.y) for m in mapped.landmarks] == \
+        [pytest.approx((m.x, m.y)) for m in adapter.landmarks]
+    keys = load_yaml(params_file)['/**']['ros__parameters']
+    place = dict((n, p) for n, _, p in load_clis_params().instances)['place']
+    assert keys['place']['localization']['cell_size'] == \
+        pytest.approx(place.localization.cell_size * 10 / 3)
+    assert keys['view']['d_max'] == profile.scan.range_max
+    # the Cyber Rodent's own profile: nothing to write
+    assert robot_files('cr', tmp_path / 'cr', write=False) == ('', None)
+    assert not (tmp_path / 'cr').exists()

@@ -1,0 +1,75 @@
+"""Smoke runs of CLIS through the standard path (``clis run --robot ros --profile P``: the blob
+detector, the robot adapter and the CLIS graph in ``/clis``): on a robot nobody here wrote,
+Clearpath's Husky in its PyBullet world (``husky_world world``, publishing only ``/clock``,
+``odom``, ``scan``, ``image_raw``, ``camera_info``), and on our own simulator as a plain world
+(started by ``clis run``). Judged by what the learner wrote (episodes numbered from 1, each
+within the profile's time limit of sim time, each learned) and by the adapter's log, never by
+wall-clock rates."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+import subprocess
+import sys
+
+from clis_base.params import config_dir
+import pytest
+from ros_util import start_node, stop
+import yaml
+
+pytestmark = pytest.mark.ros
+
+EPISODES = 2
+TIME_LIMIT = 6.0                      # [s of sim time] the episodes of a smoke run
+
+
+def short_profile(tmp_path: Path, name: str) -> Path:
+    """Profile ``name`` with short episodes (a profile may be any file)."""
+    data = yaml.safe_load((config_dir() / 'robots' / f'{name}.yaml').read_text(encoding='utf-8'))
+    data['episode']['time_limit'] = TIME_LIMIT
+    data['episode']['wander_time'] = 1.0
+    path = tmp_path / f'{name}_short.yaml'
+    path.write_text(yaml.safe_dump(data), encoding='utf-8')
+    return path
+
+
+def clis_run(tmp_path: Path, profile: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, '-m', 'clis_app.cli', 'run', '--robot', 'ros', '--profile',
+         str(profile), '--condition', 'view', '--episodes', str(EPISODES), '--out',
+         str(tmp_path / 'run'), '--quiet', '--startup-timeout', '120', *extra],
+        capture_output=True, text=True, timeout=420)
+
+
+def test_clis_learns_episodes_on_the_husky_world(tmp_path):
+    world = start_node('husky_world.world_node', '-p', 'real_time_factor:=2.0')
+    try:
+        proc = clis_run(tmp_path, short_profile(tmp_path, 'husky'))
+    finally:
+        world_out = stop(world)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert 'Traceback' not in world_out, world_out
+    check_run(tmp_path)
+
+
+def test_clis_learns_episodes_on_our_simulator_through_the_standard_path(tmp_path):
+    """A profile of our simulator (``simulator: cr_sim``, here a copy of cr's) makes ``clis
+    run`` start the simulator as a plain world, at ``--speed``."""
+    proc = clis_run(tmp_path, short_profile(tmp_path, 'cr'), '--speed', '2')
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    check_run(tmp_path)
+    assert (tmp_path / 'run' / 'logs' / 'sim.log').is_file(), 'clis run started the simulator'
+
+
+def check_run(tmp_path: Path) -> None:
+    with open(tmp_path / 'run' / 'episodes.csv', newline='') as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r['episode']) for r in rows] == list(range(1, EPISODES + 1)), rows
+    for r in rows:
+        assert 0.0 < float(r['duration']) <= TIME_LIMIT + 0.1, r
+        assert r['behaviour'] == 'view' and float(r['share_view']) == 1.0, r
+    assert (tmp_path / 'run' / 'checkpoint.npz').is_file()
+    # the robot was driven through the standard path: the adapter chose the world's type
+    logs = '\n'.join(p.read_text(errors='replace') for p in (tmp_path / 'run' / 'logs').glob('*'))
+    assert 'TwistStamped' in logs, logs[-2000:]
