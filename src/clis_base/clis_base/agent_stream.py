@@ -36,8 +36,9 @@ from __future__ import annotations
 import json
 import math
 
-from clis_base.instants import DecisionClock
 import numpy as np
+
+from clis_base.instants import DecisionClock
 
 __all__ = ['ACTION_DRAWS', 'AgentStream']
 
