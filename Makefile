@@ -86,7 +86,7 @@ run: setup
 	  $(if $(RECORD),--record $(RECORD)) $(RUN_ARGS)
 
 lint: setup
-	$(VENV)/bin/ruff check src test bench tools
+	$(VENV)/bin/ruff check --no-cache src test bench tools examples
 
 # The suite on TEST_WORKERS pytest-xdist workers (each with its own ROS_DOMAIN_ID, test/
 # conftest.py; tests that share a module fixture stay on one worker: --dist loadscope). Every
