@@ -12,8 +12,9 @@ RTF``). Every run's episodes go to ``OUT/runs/P-C-seedS.json`` (reached, duratio
 acted; the small summaries the figure is drawn from), then ``OUT/P.png`` (the success rate
 per third of the runs, per condition: the mean over seeds with its 95% t-interval, cut to
 [0, 100]) and the
-table (stdout; docs/robots.md) are drawn from them. ``--redraw`` draws them again from the
-saved runs without running anything.
+table (stdout; docs/robots.md) are drawn from them. A run whose summary is saved is not run
+again (an interrupted benchmark goes on); ``--redraw`` draws the table and the figure again
+from the saved runs without running anything.
 
 The robot does not wait for the graph (no lockstep): at a higher ``--rtf`` the modules decide
 later in sim time, and the learner says so (records that did not arrive). The table reports
@@ -173,7 +174,10 @@ def main() -> int:
     args = p.parse_args()
     if not args.redraw:
         from concurrent.futures import ThreadPoolExecutor
-        todo = [(c, s) for c in args.conditions.split(',') for s in range(args.seeds)]
+        # a run whose summary is saved already is not run again (an interrupted benchmark
+        # goes on)
+        todo = [(c, s) for c in args.conditions.split(',') for s in range(args.seeds)
+                if not (args.out / 'runs' / f'{args.profile}-{c}-seed{s}.json').exists()]
         base = 120 + (os.getpid() % 50) * 2
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:
