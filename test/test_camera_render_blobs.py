@@ -17,10 +17,11 @@ from clis_modules.core.blobs import (
 )
 from cr_sim.core.arena import load_arena
 from cr_sim.core.camera import Panoramic, Pinhole
-from cr_sim.core.geometry import raycast, wrap_angle
+from cr_sim.core.geometry import wrap_angle
 from cr_sim.core.render import DESTINATION_COLOUR, RenderParams, Scene, render
 import numpy as np
 import pytest
+from render_truth import truth as _truth
 
 R = 0.11                               # robot radius of config/robot.yaml
 PAN = Panoramic(360, 40)               # the CR's omni-camera, unrolled
@@ -51,24 +52,6 @@ def _poses(arena) -> list[tuple[float, float, float]]:
     assert all(arena.gap(x, y, R) > 0.0 for x, y, _ in poses)
     return poses
 
-
-def _truth(scene: Scene, pose, k: int) -> dict:
-    """The geometry of target k seen from ``pose``, independent of the renderer: true bearing,
-    half-width of its silhouette, and whether a tall obstacle hides all of it or none."""
-    x, y, th = pose
-    c = scene.centres[k]
-    rel = c - np.array((x, y))
-    dist = float(np.hypot(*rel))
-    r = scene.params.target_radius
-    alpha = math.asin(r / dist)
-    phi = math.atan2(rel[1], rel[0]) + np.linspace(-0.999, 0.999, 41) * alpha
-    d = np.stack((np.cos(phi), np.sin(phi)), axis=1)
-    proj = d @ rel
-    entry = proj - np.sqrt(np.maximum(r * r - (dist * dist - proj * proj), 0.0))
-    t_tall = raycast(x, y, d, scene.tall)
-    return {'bearing': wrap_angle(math.atan2(rel[1], rel[0]) - th), 'alpha': alpha,
-            'dist': dist, 'clear': bool((t_tall > entry).all()),
-            'hidden': bool((t_tall < entry).all())}
 
 
 def _in_view(camera, b: float, alpha: float) -> str:

@@ -25,7 +25,7 @@ from clis_modules.detector_node import absolute_topic, detector_of
 from clis_modules.image_conversions import camera_info_k, camera_msg, image_array, image_msg
 from cr_sim.core.arena import Box, load_arena
 from cr_sim.core.camera import Panoramic, Pinhole
-from cr_sim.core.geometry import raycast, wrap_angle
+from cr_sim.core.geometry import wrap_angle
 from cr_sim.core.profile import load_profile
 from cr_sim.core.render import Scene, render
 from cr_sim.core.sim import load_sim_params
@@ -39,6 +39,7 @@ from cr_sim.standard_topics import image_msg as sim_image_msg
 import numpy as np
 import pytest
 import rclpy
+from render_truth import truth
 from ros_util import Probe, start_node, stop
 from sensor_msgs.msg import CameraInfo, Image, JointState, LaserScan
 
@@ -72,22 +73,6 @@ def detector(kind: str) -> Detector:
         assert det.set_intrinsics(320, 240, K)
     return det
 
-
-def truth(scene: Scene, pose, k: int) -> dict:
-    """Target k seen from ``pose`` by geometry alone: bearing, half-angle of its silhouette,
-    and whether a tall obstacle hides all of it or none of it."""
-    x, y, th = pose
-    rel = scene.centres[k] - np.array((x, y))
-    dist = float(np.hypot(*rel))
-    r = scene.params.target_radius
-    alpha = math.asin(r / dist)
-    phi = math.atan2(rel[1], rel[0]) + np.linspace(-0.999, 0.999, 41) * alpha
-    d = np.stack((np.cos(phi), np.sin(phi)), axis=1)
-    proj = d @ rel
-    entry = proj - np.sqrt(np.maximum(r * r - (dist * dist - proj * proj), 0.0))
-    t_tall = raycast(x, y, d, scene.tall)
-    return {'bearing': wrap_angle(math.atan2(rel[1], rel[0]) - th), 'alpha': alpha,
-            'clear': bool((t_tall > entry).all()), 'hidden': bool((t_tall < entry).all())}
 
 
 def in_view(camera, b: float, alpha: float) -> str:

@@ -160,13 +160,11 @@ class BridgeNode(Node):
         self._send_wheels(self.now(), force=True)
 
     def _on_reset(self, request, response):
-        ev = self.episodes.end(self.t, self.now(), 'service')
+        ev, response.message = self.episodes.end_by_service(self.t, self.now())
         if ev is not None:
             self._publish_event(ev)
         self.guard.stop()
         response.success = True
-        response.message = (f'episode {self.episodes.episode} ended; the next starts after the '
-                            'wander' if ev else 'no episode was running')
         return response
 
     # ------------------------------------------------------------------ the link

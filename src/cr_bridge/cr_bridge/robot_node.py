@@ -249,13 +249,11 @@ class RobotNode(Node):
         self._drive(now)
 
     def _on_reset(self, request, response):
-        ev = self.episodes.end(self.t, time.monotonic(), 'service')
+        ev, response.message = self.episodes.end_by_service(self.t, time.monotonic())
         if ev is not None:
             self._publish_event(ev)
         self.guard.stop()
         response.success = True
-        response.message = (f'episode {self.episodes.episode} ended; the next starts after the '
-                            'wander' if ev else 'no episode was running')
         return response
 
     # ------------------------------------------------------------------ the period

@@ -210,12 +210,12 @@ def _check_args(args: argparse.Namespace) -> str | None:
         from clis_base.params import ConfigError
         from cr_sim.core.profile import load_profile
         try:
-            load_profile(args.profile)
+            robot = load_profile(args.profile)
         except ConfigError as exc:
             return f'--profile {args.profile}: {exc}'
         if args.single_process:
             return '--single-process runs the simulator only: not with --robot ros'
-        if load_profile(args.profile).simulator == 'cr_sim':
+        if robot.simulator == 'cr_sim':
             args.speed = args.speed or 1.0    # the simulator as the robot: it does not wait
         elif args.speed != 0:
             return f"--speed {args.speed}: the robot's own clock sets the pace with --robot ros"

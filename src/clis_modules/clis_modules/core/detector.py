@@ -5,7 +5,7 @@ the frame gives (:mod:`clis_modules.core.blobs` for the model of one image).
 
 * Camera model: the nominal one (a robot profile's field of view,
   ``CameraSpec.camera_model()``) until intrinsics arrive (:meth:`Detector.set_intrinsics`,
-  from sensor_msgs/CameraInfo); from then on a pinhole frame of the intrinsics' size is read
+  a camera_info message's ``k``); from then on a pinhole frame of the intrinsics' size is read
   with ``Pinhole.from_k`` (:func:`~clis_modules.core.blobs.camera_for_frame`). A panoramic
   strip has no intrinsics: its model is the full turn over the frame's columns.
 * A frame: the targets' blobs (:func:`~clis_modules.core.blobs.detect`), their bearings

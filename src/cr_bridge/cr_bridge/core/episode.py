@@ -252,3 +252,9 @@ class RobotEpisodes:
         if reason:
             ev.values['reason'] = reason
         return ev
+
+    def end_by_service(self, t: float, now: float) -> tuple[Event | None, str]:
+        """The ``reset`` service: :meth:`end` (reason ``service``), and the service's answer."""
+        ev = self.end(t, now, 'service')
+        return ev, (f'episode {self.episode} ended; the next starts after the wander' if ev
+                    else 'no episode was running')
