@@ -1,14 +1,20 @@
 """CLIS through the standard path: learning on the Husky in PyBullet, or on our simulator.
 
     python bench/bench_robots.py [--profile husky] [--conditions view,async] [--seeds 3]
-                                 [--episodes 24] [--rtf 3] [--jobs 2] [--out docs/figures/robots]
+                                 [--episodes 24] [--rtf 3] [--jobs 2] [--lockstep]
+                                 [--out docs/figures/robots]
+    python bench/bench_robots.py --profile cr --native --episodes 300 --rtf 0 --jobs 3 \
+        --time-limit 60 --wander 5 --out docs/figures/robots/cr
 
 Each run is the robot and ``clis run --robot ros --profile P --condition C --seed S --episodes
 N`` (the CLIS graph in ``/clis``, the blob detector, the robot adapter), on a ROS_DOMAIN_ID of
 its own, ``--jobs`` runs at a time. The robot: ``--profile husky``, the Husky world
 (``husky_world world``, its clock at ``--rtf`` times wall time), a robot nobody here wrote;
 ``--profile cr``, our simulator as a plain world, started by ``clis run`` itself (``--speed
-RTF``). Every run's episodes go to ``OUT/runs/P-C-seedS.json`` (reached, duration, return, who
+RTF``, always in lockstep). ``--native`` (profile cr): the same conditions and seeds through
+the native path too, headless (``clis experiment``, which ``clis run --robot sim`` equals row
+for row), saved as ``OUT/runs/native-C-seedS.json``, and the table compares the two.
+Every run's episodes go to ``OUT/runs/P-C-seedS.json`` (reached, duration, return, who
 acted; the small summaries the figure is drawn from), then ``OUT/P.png`` (the success rate
 per third of the runs, per condition: the mean over seeds with its 95% t-interval, cut to
 [0, 100]) and the
@@ -16,9 +22,11 @@ table (stdout; docs/robots.md) are drawn from them. A run whose summary is saved
 again (an interrupted benchmark goes on); ``--redraw`` draws the table and the figure again
 from the saved runs without running anything.
 
-The robot does not wait for the graph (no lockstep): at a higher ``--rtf`` the modules decide
-later in sim time, and the learner says so (records that did not arrive). The table reports
-the wall time of each run and the learner's late-record warnings beside the success rates.
+The Husky world does not wait for the graph unless ``--lockstep`` (the world's ``lockstep``
+parameter and ``clis run --lockstep``: it holds its clock at each camera frame, 20 Hz, until
+the command on it); without, at a higher ``--rtf`` the modules decide later in sim time, and the
+learner says so (records that did not arrive). The table reports the wall time of each run and
+the learner's late-record warnings beside the success rates.
 """
 
 from __future__ import annotations
@@ -41,7 +49,7 @@ T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8
 
 
 def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, domain: int,
-            out: Path, episode_keys: dict) -> dict:
+            out: Path, episode_keys: dict, lockstep: bool = False) -> dict:
     """One run (module docstring): its episodes and costs. ``episode_keys``: the profile's
     ``episode`` keys this benchmark sets (a copy of the profile is run)."""
     env = {**os.environ, 'ROS_DOMAIN_ID': str(domain)}
@@ -52,11 +60,14 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
         data['episode'].update(episode_keys)
         profile_file = Path(tmp) / f'{profile}.yaml'
         profile_file.write_text(yaml.safe_dump(data))
+        held = ['-p', 'lockstep:=true', *(x for k in ('odom', 'scan', 'image')
+                                          for x in ('-p', f'{k}_rate:=20.0'))] if lockstep else []
         world = (subprocess.Popen(
             [sys.executable, '-m', 'husky_world.world_node', '--ros-args', '-p',
-             f'real_time_factor:={rtf!r}'], env=env, stdout=subprocess.DEVNULL,
+             f'real_time_factor:={rtf!r}', *held], env=env, stdout=subprocess.DEVNULL,
             stderr=subprocess.STDOUT) if profile == 'husky' else None)
-        speed = [] if world is not None else ['--speed', repr(rtf)]
+        speed = (['--lockstep'] if lockstep else []) if world is not None \
+            else ['--speed', repr(rtf)]
         t0 = time.monotonic()
         try:
             proc = subprocess.run(
@@ -81,6 +92,7 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
         late = sum(line.count('did not arrive') for line in
                    (Path(tmp) / 'run' / 'logs' / 'learner.log').read_text().splitlines())
     run = {'profile': profile, 'condition': condition, 'seed': seed, 'rtf': rtf,
+           'lockstep': lockstep or profile == 'cr',
            'episode_keys': episode_keys, 'wall_s': round(wall, 1),
            'late_warnings': late,
            'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
@@ -90,6 +102,43 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
     (out / 'runs' / f'{profile}-{condition}-seed{seed}.json').write_text(
         json.dumps(run, indent=1))
     return run
+
+
+def run_native(conditions: list[str], seeds: int, episodes: int, out: Path,
+               episode_keys: dict) -> None:
+    """The native path's runs of the same conditions and seeds (``clis experiment``, headless:
+    ``clis run --robot sim`` row for row), saved as ``native-C-seedS.json``. ``episode_keys``:
+    the profile's time limit and wander, which must be the simulator's own."""
+    from cr_sim.core.sim import load_sim_params
+    ep = load_sim_params().episode
+    mine = {'time_limit': ep.time_limit, 'wander_time': ep.wander_time}
+    if any(abs(float(episode_keys[k]) - v) > 1e-9 for k, v in mine.items()):
+        raise SystemExit(f'--native compares like with like: --time-limit {mine["time_limit"]} '
+                         f'--wander {mine["wander_time"]} (the simulator\'s own)')
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.monotonic()
+        proc = subprocess.run(
+            [sys.executable, '-m', 'clis_app.cli', 'experiment', '--conditions',
+             ','.join(conditions), '--seeds', str(seeds), '--episodes', str(episodes),
+             '--eval-every', '0', '--eval-episodes', '0', '--out', tmp, '--quiet'],
+            capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f'clis experiment exited {proc.returncode}\n'
+                               f'{proc.stderr[-2000:]}')
+        wall = time.monotonic() - t0
+        with open(Path(tmp) / 'episodes.csv', newline='') as fh:
+            rows = [r for r in csv.DictReader(fh) if r['phase'] == 'train']
+    (out / 'runs').mkdir(parents=True, exist_ok=True)
+    for c in conditions:
+        for seed in range(seeds):
+            mine = [r for r in rows if r['condition'] == c and int(r['seed']) == seed]
+            run = {'profile': 'native', 'condition': c, 'seed': seed, 'rtf': 0.0,
+                   'lockstep': True, 'episode_keys': episode_keys,
+                   'wall_s': round(wall / (len(conditions) * seeds), 1), 'late_warnings': 0,
+                   'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
+                                 'duration': float(r['duration']), 'ret': float(r['ret']),
+                                 'behaviour': r['behaviour']} for r in mine]}
+            (out / 'runs' / f'native-{c}-seed{seed}.json').write_text(json.dumps(run, indent=1))
 
 
 def thirds(run: dict) -> list[float]:
@@ -113,42 +162,62 @@ def mean_ci(values: list[float]) -> tuple[float, float, float]:
 
 
 def report(out: Path, profile: str) -> str:
-    """The table and the figure from ``OUT/runs`` (module docstring)."""
-    runs = [json.loads(p.read_text())
-            for p in sorted((out / 'runs').glob(f'{profile}-*.json'))]
-    by: dict[str, list[dict]] = {}
-    for r in runs:
-        by.setdefault(r['condition'], []).append(r)
-    lines = ['| condition | seeds | episodes | success, first third [95% CI] | last third '
-             '| per seed, first -> last [%] | wall min per run | late-record warnings |',
-             '|---|---|---|---|---|---|---|---|']
+    """The table and the figure from ``OUT/runs`` (module docstring); with the native path's
+    runs there (``--native``), both paths side by side and whether each one's last-third
+    success lies within the other's 95% interval."""
+    paths = [profile] + (['native'] if profile == 'cr' else [])
+    by: dict[tuple[str, str], list[dict]] = {}
+    for path in paths:
+        for f in sorted((out / 'runs').glob(f'{path}-*.json')):
+            r = json.loads(f.read_text())
+            by.setdefault((r['condition'], path), []).append(r)
+    by = dict(sorted(by.items()))
+    two = any(path == 'native' for _, path in by)
+    lines = ['| condition | ' + ('path | ' if two else '') + 'seeds | episodes | success, first '
+             'third [95% CI] | last third | per seed, first -> last [%] | wall min per run | '
+             'late-record warnings |',
+             '|---|' + ('---|' if two else '') + '---|---|---|---|---|---|---|']
     curves = {}
-    for cond, rs in by.items():
+
+    def cell(c: tuple[float, float, float]) -> str:
+        return f'{100 * c[0]:.0f}% [{100 * c[1]:.0f}, {100 * c[2]:.0f}]'
+    for (cond, path), rs in by.items():
         t = [thirds(r) for r in rs]
         first, last = mean_ci([x[0] for x in t]), mean_ci([x[2] for x in t])
-        curves[cond] = [mean_ci([x[i] for x in t]) for i in range(3)]
-        def cell(c: tuple[float, float, float]) -> str:
-            return f'{100 * c[0]:.0f}% [{100 * c[1]:.0f}, {100 * c[2]:.0f}]'
+        curves[(cond, path)] = [mean_ci([x[i] for x in t]) for i in range(3)]
         per_seed = ', '.join(f'{round(100 * x[0])}->{round(100 * x[2])}' for x in t)
+        name = {'native': 'native (headless)', profile: 'standard (clis run --robot ros)'}
         lines.append(
-            f'| {cond} | {len(rs)} | {len(rs[0]["episodes"])} | {cell(first)} | {cell(last)} '
-            f'| {per_seed} | {sum(r["wall_s"] for r in rs) / len(rs) / 60:.1f} | '
+            f'| {cond} | ' + (f'{name[path]} | ' if two else '') + f'{len(rs)} | '
+            f'{len(rs[0]["episodes"])} | {cell(first)} | {cell(last)} | {per_seed} | '
+            f'{sum(r["wall_s"] for r in rs) / len(rs) / 60:.1f} | '
             f'{sum(r["late_warnings"] for r in rs)} |')
+    if two:
+        for cond in sorted({c for c, _ in by}):
+            if (cond, profile) in curves and (cond, 'native') in curves:
+                a, b = curves[(cond, profile)][2], curves[(cond, 'native')][2]
+                inside = b[1] <= a[0] <= b[2] and a[1] <= b[0] <= a[2]
+                lines.append(f'\n{cond}, last third: standard {cell(a)}, native {cell(b)}: '
+                             + ("each within the other's 95% CI" if inside else
+                                "NOT within each other's 95% CIs"))
     try:
         import matplotlib
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
-        fig, ax = plt.subplots(figsize=(5, 3.2))
-        for cond, c in curves.items():
+        fig, ax = plt.subplots(figsize=(5.5, 3.4))
+        for k, ((cond, path), c) in enumerate(curves.items()):
             err = [[100 * (m - lo) for m, lo, _ in c], [100 * (hi - m) for m, _, hi in c]]
-            ax.errorbar([1, 2, 3], [100 * m for m, _, _ in c], yerr=err,
-                        marker='o', capsize=4, label=f'{cond} ({len(by[cond])} seeds)')
+            x = [i + 1 + 0.06 * (k - (len(curves) - 1) / 2) for i in range(3)]
+            ax.errorbar(x, [100 * m for m, _, _ in c], yerr=err, marker='o', capsize=4,
+                        ls='--' if path == 'native' else '-',
+                        label=f'{cond}' + (f', {path}' if two else '')
+                        + f' ({len(by[(cond, path)])} seeds)')
         ax.set_xticks([1, 2, 3], ['first third', 'middle', 'last third'])
         ax.set_ylabel('episodes reached [%]')
         ax.set_ylim(-5, 105)
         ax.set_title({'husky': 'Husky in PyBullet', 'cr': 'our simulator'}.get(profile, profile)
                      + ' through the standard path')
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=7)
         fig.tight_layout()
         fig.savefig(out / f'{profile}.png', dpi=120)
     except ImportError:
@@ -170,10 +239,21 @@ def main() -> int:
     p.add_argument('--wander', type=float, default=5.0,
                    help="the profile's episode.wander_time for the runs [s]")
     p.add_argument('--out', type=Path, default=ROOT / 'docs' / 'figures' / 'robots')
+    p.add_argument('--lockstep', action='store_true',
+                   help='husky: the world waits for the graph (module docstring)')
+    p.add_argument('--native', action='store_true',
+                   help='cr: the native path on the same conditions and seeds too')
     p.add_argument('--redraw', action='store_true', help='only the table and the figure')
     args = p.parse_args()
+    if args.native and args.profile != 'cr':
+        p.error("--native compares our simulator's two paths: --profile cr")
     if not args.redraw:
         from concurrent.futures import ThreadPoolExecutor
+        keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
+        conditions = args.conditions.split(',')
+        if args.native and not all((args.out / 'runs' / f'native-{c}-seed{s}.json').exists()
+                                   for c in conditions for s in range(args.seeds)):
+            run_native(conditions, args.seeds, args.episodes, args.out, keys)
         # a run whose summary is saved already is not run again (an interrupted benchmark
         # goes on)
         todo = [(c, s) for c in args.conditions.split(',') for s in range(args.seeds)
@@ -181,9 +261,8 @@ def main() -> int:
         base = 120 + (os.getpid() % 50) * 2
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:
-            keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
             futures = [pool.submit(run_one, args.profile, c, s, args.episodes, args.rtf,
-                                   base + k, args.out, keys)
+                                   base + k, args.out, keys, args.lockstep)
                        for k, (c, s) in enumerate(todo)]
             for f in futures:
                 r = f.result()

@@ -118,6 +118,7 @@ def cases(i: Path) -> list[tuple[str, list[str], str]]:
         ('--robot', ['--robot', 'ros'], 'add --profile NAME'),
         ('--profile', ['--robot', 'ros', '--profile', 'nosuch'], 'nosuch'),
         ('--profile', ['--profile', 'husky'], 'only with --robot ros'),
+        ('--lockstep', ['--lockstep'], 'only with --robot ros'),
         ('--speed', ['--robot', 'ros', '--profile', 'husky', '--speed', '2'], 'own clock'),
         ('--arena', ['--robot', 'ros', '--profile', 'husky', '--arena', str(i / 'arena_bad.yaml')],
          "the profile's"),

@@ -11,6 +11,7 @@ from geometry_msgs.msg import TwistStamped
 from husky_world import world as hw
 from husky_world.conversions import from_time
 from husky_world.world import PHYSICS_HZ, POST_HEIGHT, Every, HuskyWorld, HuskyWorldParams
+from husky_world.world_node import FrameHold
 from matplotlib.colors import rgb_to_hsv
 from nav_msgs.msg import Odometry
 import numpy as np
@@ -244,6 +245,49 @@ def test_bad_parameters_name_the_key(values, message):
         make(**values).close()
 
 
+def test_frame_hold_waits_for_a_command_stamped_at_or_after_the_frame():
+    hold = FrameHold(timeout=2.0, resend=0.2)
+    assert hold.poll(0.0) == 'go', 'nothing held yet'
+    assert hold.held_at(0.5, now=10.0)
+    assert hold.poll(10.0) == 'wait'
+    hold.on_command(0.45)                           # the answer to the previous frame
+    assert hold.poll(10.1) == 'wait'
+    assert hold.poll(10.21) == 'resend'             # every 0.2 s of wall time
+    assert hold.poll(10.3) == 'wait'
+    assert hold.poll(10.42) == 'resend'
+    assert hold.poll(10.43) == 'wait'
+    hold.on_command(0.5 - 2e-6)                     # just outside the tolerance
+    assert hold.poll(10.44) == 'wait'
+    hold.on_command(0.5 - 5e-7)                     # at t, within the tolerance
+    assert hold.poll(10.45) == 'go' and hold.poll(10.46) == 'go'
+    assert hold.timeouts == 0
+    # a later stamp releases too, also one that came before the frame was published
+    hold.held_at(0.55, now=11.0)
+    hold.on_command(0.6)
+    assert hold.poll(11.01) == 'go'
+    hold.held_at(0.65, now=12.0)
+    hold.on_command(0.6)
+    assert hold.poll(12.0) == 'wait'
+
+
+def test_frame_hold_runs_free_after_the_timeout_until_the_next_command():
+    hold = FrameHold(timeout=2.0, resend=0.2)
+    assert hold.held_at(0.0, now=0.0)               # t = 0: no command has ever come
+    assert hold.poll(1.99) == 'resend'
+    assert hold.poll(2.0) == 'go' and hold.timeouts == 1
+    assert not hold.held_at(0.1, now=2.1), 'free: the next frames are not held'
+    assert hold.poll(2.1) == 'go'
+    assert not hold.held_at(0.2, now=2.2)
+    hold.on_command(0.05)                           # any command re-arms, an old stamp too
+    assert hold.held_at(0.3, now=2.3)
+    assert hold.poll(2.31) == 'wait'
+    hold.on_command(0.3)
+    assert hold.poll(2.32) == 'go' and hold.timeouts == 1
+    assert hold.held_at(0.4, now=3.0)               # the timeout counts from each hold
+    assert hold.poll(4.99) == 'resend'
+    assert hold.poll(5.0) == 'go' and hold.timeouts == 2
+
+
 # ------------------------------------------------------------------------------ the node
 
 TOPICS = {'/clock', '/odom', '/scan', '/image_raw', '/camera_info'}
@@ -344,6 +388,49 @@ def test_node_publishes_the_standard_topics_and_obeys_cmd_vel(probe):
         t_last = stamp(moving)
         assert probe.spin_until(lambda: stamp(probe.msgs['odom'][-1]) > t_last + 1.5, 30)
         assert abs(probe.msgs['odom'][-1].twist.twist.linear.x) < 0.02
+    finally:
+        out = stop(proc)
+    assert proc.returncode == 0 and 'Traceback' not in out, out
+
+
+@pytest.mark.ros
+def test_lockstep_holds_the_world_at_each_image_until_its_command(probe):
+    # as fast as the CPU goes, yet the world steps on only when the controller has answered
+    # the image: frame by frame, none skipped. Judged by the stamps, never by wall-clock rates.
+    proc = start_node('husky_world.world_node', '-p', 'lockstep:=true',
+                      '-p', 'command_timeout:=30.0', '-p', 'real_time_factor:=0.0',
+                      '-p', 'image_rate:=20.0', '-p', 'scan_rate:=20.0',
+                      '-p', 'odom_rate:=20.0')
+    try:
+        node = probe.node
+        probe.listen(Clock, '/clock')
+        images: list[Image] = []
+        node.create_subscription(Image, 'image_raw', images.append, qos_profile_sensor_data)
+        # no cmd_vel: held at the first image, which is re-sent (a late subscriber gets it)
+        assert probe.spin_until(lambda: images, 60), stop(proc)
+        first = stamp(images[0])
+        probe.spin_for(1.0)
+        clocks = [stamp(m) for m in probe.msgs['/clock']]
+        assert clocks and max(clocks) <= first + 1e-6, (first, max(clocks))
+        assert len(images) >= 2 and {stamp(m) for m in images} == {first}, 'the held frame'
+
+        # a controller that answers each image with a command stamped with the image's stamp
+        pub = node.create_publisher(TwistStamped, 'cmd_vel', 10)
+
+        def answer(img: Image) -> None:
+            cmd = TwistStamped()
+            cmd.header.stamp = img.header.stamp
+            cmd.twist.linear.x = 0.2
+            pub.publish(cmd)
+        answer(images[-1])
+        node.create_subscription(Image, 'image_raw', answer, qos_profile_sensor_data)
+        assert probe.spin_until(lambda: len({stamp(m) for m in images}) >= 8, 60), \
+            (sorted({stamp(m) for m in images}), stop(proc))
+        seen = sorted({stamp(m) for m in images})
+        assert seen[0] == first
+        assert all(abs(b - a - 0.05) < 1e-6 for a, b in zip(seen, seen[1:])), seen
+        # never more than one frame past the images answered
+        assert max(stamp(m) for m in probe.msgs['/clock']) <= seen[-1] + 0.05 + 1e-6
     finally:
         out = stop(proc)
     assert proc.returncode == 0 and 'Traceback' not in out, out

@@ -11,6 +11,7 @@ from clis_base.params import ConfigError, build
 from cr_bridge.core.episode import RobotEpisodes
 from cr_bridge.core.ros_robot import (
     Freshness,
+    Lockstep,
     RobotReader,
     Scan,
     SectorReader,
@@ -305,3 +306,23 @@ def test_the_arena_at_the_profiles_size():
         [c * 10 / 3 for m in arena.landmarks for c in (m.x, m.y)])
     assert big.short_obstacles[0].size == pytest.approx(
         tuple(v * 10 / 3 for v in arena.short_obstacles[0].size))
+
+
+def test_lockstep_reads_a_frame_once_its_inputs_are_in_and_waits_at_decision_instants():
+    """Lockstep (a robot that holds its clock until the frame's command): a frame is the
+    camera's stamp once odometry and scan of it are in, after the frame read last; within an
+    episode started at t0 the frames at t0 + l tau_i wait for the decision, the others and all
+    frames between episodes are answered at once; without periods every frame of an episode
+    waits."""
+    lock = Lockstep([0.25, 0.5, 1.2], 0.05)
+    assert Lockstep.frame(1.0, 1.0, 1.0, 0.95) == 1.0
+    assert Lockstep.frame(1.0, 0.95, 1.0, 0.95) is None, 'its odometry not in yet'
+    assert Lockstep.frame(1.0, 1.0, 0.95, 0.95) is None, 'its scan not in yet'
+    assert Lockstep.frame(1.0, 1.05, 1.0, 1.0) is None, 'read already'
+    t0 = 3.1
+    waits = [k for k in range(40) if lock.waits(round(t0 + 0.05 * k, 9), t0, True)]
+    assert waits == [0, 5, 10, 15, 20, 24, 25, 30, 35], waits       # 0.25 s and 1.2 s
+    assert not any(lock.waits(t0 + 0.05 * k, t0, False) for k in range(40))
+    assert not lock.waits(t0 + 0.025, t0, True), 'off the tick grid: no module decides'
+    every = Lockstep([0.0], 0.05)
+    assert all(every.waits(t0 + 0.05 * k, t0, True) for k in range(10))

@@ -303,6 +303,69 @@ def test_ctrl_c_leaves_the_robot_commanded_to_zero(fake):
     assert zero(robot.cmds[-1]) and moving(robot.cmds[-2]), [twist(m) for m in robot.cmds[-3:]]
 
 
+def test_lockstep_answers_each_frame_once_and_a_decision_frame_with_its_decision(fake):
+    """node.lockstep with decision periods of 0.25 s: the fake robot publishes one frame of
+    its sensors at a time (every PERIOD) and steps on only once a cmd_vel stamped with it
+    arrives, as our simulator's and the Husky world's lockstep do. A frame is read (its ``ir``
+    published) only once its camera is in too; the frames between the decision instants are
+    answered at once (the command in force), those at t0 + l 0.25 s of the running episode
+    only by the arbiter's decision on them; every answer is stamped with its frame."""
+    robot = fake()
+    robot.subscribe_cmd_vel(TwistStamped)
+    robot.listen(LaserScan, f'{NS}/ir')
+    proc = start_node('cr_bridge.robot_node', *node_args(
+        '-p', 'node.lockstep:=true', '-p', 'node.decision_periods:=[0.25]'))
+
+    def frame(t: float, camera: bool = True) -> None:
+        """Clock, odom, scan (and camera) of frame ``t``."""
+        robot.t = round(t - DT, 9)
+        real = robot.pub_camera
+        if not camera:                                # the camera's message goes nowhere
+            robot.pub_camera = robot.node.create_publisher(JointState, f'{NS}/elsewhere', 1)
+        robot.step(wheels=None)
+        robot.pub_camera = real
+
+    def arrived(msgs: list, t: float, wait: float) -> list:
+        """The messages stamped ``t`` that arrive within ``wait`` wall seconds."""
+        end = time.monotonic() + wait
+        while True:
+            got = [m for m in msgs if abs(conv.from_time(m.header.stamp) - t) < 1e-6]
+            if got or time.monotonic() > end:
+                return got
+            robot.executor.spin_once(timeout_sec=0.01)
+    try:
+        # the first frame, sent again until the node has read it; the episode starts there
+        # ('here'): a decision instant, answered by the decision alone
+        t0, ir = PERIOD, robot.msgs[f'{NS}/ir']
+        for _ in range(300):
+            frame(t0)
+            if arrived(ir, t0, 0.1):
+                break
+        assert arrived(ir, t0, 0.0), 'the first frame was never read'
+        assert arrived(robot.cmds, t0, 0.5) == [], 'a decision frame waits for its decision'
+        robot.pub_wheels.publish(conv.wheels_cmd_msg(WHEELS, t0, 'base_link'))
+        got = arrived(robot.cmds, t0, 10.0)
+        assert len(got) == 1 and moving(got[0]), got
+        for k in range(1, 11):
+            t = round(t0 + k * PERIOD, 9)
+            if k == 3:                                # no camera yet: not read, not answered
+                frame(t, camera=False)
+                assert arrived(ir, t, 0.5) == [] and arrived(robot.cmds, t, 0.0) == []
+            frame(t)
+            if k % 5:                                 # between the instants: at once
+                got = arrived(robot.cmds, t, 10.0)
+                assert len(got) == 1 and moving(got[0]), (k, got)
+            else:                                     # t0 + 0.25 s, t0 + 0.5 s: the decision
+                assert arrived(robot.cmds, t, 0.5) == [], k
+                robot.pub_wheels.publish(conv.wheels_cmd_msg(WHEELS, t, 'base_link'))
+                assert len(arrived(robot.cmds, t, 10.0)) == 1, k
+    finally:
+        out = stop(proc)
+    assert 'Traceback' not in out and 'lockstep' in out, out
+    stamps = [conv.from_time(m.header.stamp) for m in robot.cmds]
+    assert stamps == sorted(stamps) and len(stamps) == len(set(stamps)), stamps
+
+
 def test_a_bad_profile_or_topics_that_clash_stop_the_node_in_one_line():
     """Exit code 2 and one line naming the key (a node at the root: its odom and cmd_vel
     would be the robot's)."""

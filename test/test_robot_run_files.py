@@ -42,3 +42,25 @@ def test_the_husky_run_maps_the_arena_at_its_size(tmp_path):
     # the Cyber Rodent's own profile: nothing to write
     assert robot_files('cr', tmp_path / 'cr', write=False) == ('', None)
     assert not (tmp_path / 'cr').exists()
+
+
+def test_the_plan_puts_a_waiting_robot_in_lockstep_with_the_condition_periods(tmp_path):
+    """``clis run --robot ros``: our simulator (profile cr) always waits for the graph (its
+    lockstep, its first tick once the detector and the adapter are matched), the adapter reads
+    its frames in lockstep at the condition's decision periods; another robot only with
+    ``--lockstep``; the detector's overlay only for a subscriber."""
+    from clis_app.graph.plan import plan_graph
+    from clis_modules.core.modules import condition_periods
+    taus = [float(t) for _, t in condition_periods(load_clis_params(), 'async')]
+    cr = {c.name: c for c in plan_graph('async', 0, tmp_path, 0.0, robot='ros',
+                                         profile='cr').children}
+    assert cr['sim'].params['node.lockstep'] is True
+    assert cr['sim'].params['node.start_subscribers'] == ['image_raw:1', 'ir:1', 'odom:1',
+                                                          'cmd_vel:1']
+    assert cr['robot'].params['node.lockstep'] is True
+    assert cr['robot'].params['node.decision_periods'] == taus
+    assert cr['detector'].params['overlay'] is False
+    for lockstep in (False, True):
+        husky = {c.name: c for c in plan_graph('view', 0, tmp_path, 0.0, robot='ros',
+                                                profile='husky', lockstep=lockstep).children}
+        assert 'sim' not in husky and husky['robot'].params['node.lockstep'] is lockstep

@@ -2,9 +2,10 @@
 
 Pure: :class:`cr_sim.core.sim_episodes.SimEpisodes` in world mode drives a robot from start A
 straight through the goal and on into short obstacle S4, past the time limit: no step ends
-anything, nothing is summed, no event is made, the learner gate and lockstep never hold, the
-robot moves at most one wheel-limited step per tick (never teleported, also not by ``reset``
-or ``start``) and the obstacle blocks it. The same drive with episodes ends at the goal (the
+anything, nothing is summed, no event is made, the learner gate never holds and lockstep holds
+at every tick until a command stamped at or after it (never one stamped before), the robot
+moves at most one wheel-limited step per tick (never teleported, also not by ``reset`` or
+``start``) and the obstacle blocks it. The same drive with episodes ends at the goal (the
 drive does pass through it). An endless :class:`~cr_sim.core.sim.Simulator` never gives the
 goal's reward and never ends. ROS: the node with ``node.episodes:=false`` runs its clock past
 the time limit of config/sim.yaml, publishes ``image_raw``, ``scan`` and ``odom``, no
@@ -42,7 +43,7 @@ def test_world_mode_drives_past_the_goal_and_the_time_limit_without_an_end():
     core = world()
     arena = core.arena
     dest = np.array((arena.destination.x, arena.destination.y))
-    assert not core.gate.wait_for_learner and not core.gate.lockstep
+    assert not core.gate.wait_for_learner and core.gate.lockstep
     assert core.first(), 'world mode: no learner to wait for'
     assert core.start() is None, 'no start event'
     a = arena.start('A')
@@ -50,14 +51,19 @@ def test_world_mode_drives_past_the_goal_and_the_time_limit_without_an_end():
     poses, stamps, contacts, gaps = [core.sim.pose], [core.sim_time], [], []
     n = round(3 * TIME_LIMIT / DT)
     for k in range(n):
+        if k:                                     # held at the last tick: an older command
+            assert core.holding                   # does not release it, its own does
+            core.command(FORWARD, core.sim_time - DT)
+            assert core.holding and not core.stale(core.sim_time - DT)
         core.command(FORWARD, core.sim_time)
+        assert not core.holding
         res = core.step()
         assert res is not None and not (res.done or res.reached or res.timeout), (k, res)
         assert core.finish(res) == (None, False)
         obs, _ = core.readings_now()
         assert obs is not None
         core.published(core.sim_time)
-        assert not core.holding, 'lockstep must not hold in world mode'
+        assert core.holding and core.gate.t == core.sim_time, 'lockstep holds at every tick'
         poses.append(core.sim.pose)
         stamps.append(core.sim_time)
         contacts.append(res.collision)

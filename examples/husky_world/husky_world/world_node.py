@@ -12,8 +12,13 @@ topic              type                        QoS          rate [Hz of sim time
 ``scan``           sensor_msgs/LaserScan       sensor data  ``scan_rate`` (10)
 ``image_raw``      sensor_msgs/Image (rgb8)    sensor data  ``image_rate`` (10)
 ``camera_info``    sensor_msgs/CameraInfo      sensor data  with each image, the same stamp
-``cmd_vel`` (in)   geometry_msgs/TwistStamped  reliable 10  any
+``cmd_vel`` (in)   geometry_msgs/TwistStamped  reliable 10  any (lockstep: one per image)
+``ground_truth``   nav_msgs/Odometry           reliable 10  with odom, if ``ground_truth``
 =================  ==========================  ===========  ================================
+
+``ground_truth`` (off by default, as Gazebo's pose plugin is): the body's true pose in the
+arena (frame ``map``), for a benchmark that judges a localization; no robot has it, and the
+CLIS graph never reads it.
 
 "sensor data" is rclpy's ``qos_profile_sensor_data`` (best effort, depth 5), as Gazebo's
 bridges publish sensors: a subscriber must ask for best effort. No reset service: where the
@@ -25,6 +30,21 @@ describes); ``/clock`` comes first. ``real_time_factor`` paces the physics again
 clock (1 = real time, 0 = as fast as the CPU goes); commands are taken every
 :data:`SPIN_EVERY` steps. The node's own ROS clock is the wall's.
 
+Lockstep (``lockstep``, off by default; like Gazebo's or PX4 SITL's lockstep, for benchmarks
+and tests that must not depend on the host's speed): the world waits for its controller. After
+publishing an image (the camera frame at sim time t) the physics does not step on until a
+``cmd_vel`` whose ``header.stamp`` is at or after t (within :data:`STAMP_TOLERANCE` s) arrives,
+or ``command_timeout`` s of wall time passed: then it runs free, as without lockstep, until the
+next ``cmd_vel`` arrives (one warning per such timeout), and is held again at the next image.
+Before the first command it is thus held at t = 0 for ``command_timeout``. While it waits it
+serves its callbacks and re-publishes the held instant's ``/clock``, odom, scan, image and
+camera_info (all five, stamped t) every :data:`RESEND_EVERY` s of wall time, so that a message
+lost while the graph connects does not stall the run. Whether odom and scan are published at
+the image instants in the first place is the rates' business (``odom_rate``, ``scan_rate``).
+``real_time_factor`` still paces the physics: a held world falls behind the wall clock and
+makes up for it as it would for a slow step; more than 1 s behind, it starts afresh from there
+instead of bursting to catch up.
+
 Safety: a command is clipped to ``v_max``, ``omega_max``; one with NaN or inf drives at zero;
 ``cmd_timeout`` s of sim time without a command set the wheels to zero. Ctrl-C or SIGTERM
 stops the loop between two steps.
@@ -34,8 +54,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, fields
+import math
 import sys
 import time
+from typing import Any
 
 from clis_base.params import as_dict, build
 from clis_base.ros.process import SHUTDOWN_RACES, reraise_unless_shut_down, start_node
@@ -45,6 +67,7 @@ from nav_msgs.msg import Odometry
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, LaserScan
@@ -56,15 +79,25 @@ from husky_world.world import (
     Every,
     HuskyWorld,
     HuskyWorldParams,
+    Odom,
     opt,
     param_fields,
 )
 
-__all__ = ['SPIN_EVERY', 'WorldNodeParams', 'WorldNode', 'run', 'main']
+__all__ = ['SPIN_EVERY', 'RESEND_EVERY', 'STAMP_TOLERANCE', 'HOLD_SPIN', 'WorldNodeParams',
+           'FrameHold', 'WorldNode', 'run', 'main']
 
 #: Physics steps between two takes of the commands (3: 80 Hz of sim time, a command acts
 #: within 12.5 ms of sim time); an executor's turn costs about 0.6 ms of CPU, a step 0.1 ms.
 SPIN_EVERY = 3
+#: [s of wall time] lockstep: a held frame's messages are re-published this often.
+RESEND_EVERY = 0.2
+#: [s] lockstep: a command stamped this much before the held instant still releases it (the
+#: stamps are whole nanoseconds).
+STAMP_TOLERANCE = 1e-6
+#: [s of wall time] lockstep: the longest executor turn while a frame is held (a command is
+#: served as soon as it arrives; this bounds the reaction to a timeout, a resend or Ctrl-C).
+HOLD_SPIN = 0.01
 
 
 @dataclass(frozen=True)
@@ -78,6 +111,71 @@ class WorldNodeParams:
     scan_rate: float = opt(10.0, 0.1, float(PHYSICS_HZ), doc='[Hz of sim time] scan')
     image_rate: float = opt(10.0, 0.1, float(PHYSICS_HZ), doc='[Hz of sim time] image_raw '
                             'and camera_info')
+    ground_truth: bool = opt(False, doc="true: also publish the body's true pose on "
+                             "'ground_truth' with each odom (for benchmarks only)")
+    lockstep: bool = opt(False, doc='true: after each image (sim time t) the physics waits for '
+                         'a cmd_vel stamped at or after t (module docstring)')
+    command_timeout: float = opt(2.0, 0.01, 3600.0, doc='[s wall] lockstep: no such cmd_vel '
+                                 'for this long: run free until the next cmd_vel')
+
+
+class FrameHold:
+    """The lockstep's rule, without ROS: when the world may step on past a held frame.
+
+    Parameters
+    ----------
+    timeout : float
+        [s of wall time] a frame held this long without its command is let go, and the world
+        runs free (nothing is held) until the next command re-arms the hold.
+    resend : float
+        [s of wall time] :meth:`poll` says ``'resend'`` this long after the frame was
+        published or last re-published.
+    tolerance : float
+        [s] a command stamped this much before the held instant still releases it.
+
+    The wall times ``now`` are the caller's (``time.monotonic()``), so the rule is a pure
+    function of its calls.
+    """
+
+    def __init__(self, timeout: float, resend: float = RESEND_EVERY,
+                 tolerance: float = STAMP_TOLERANCE) -> None:
+        self.timeout, self.resend, self.tolerance = float(timeout), float(resend), tolerance
+        self.t: float | None = None        # the held instant [s of sim time]; None: not held
+        self.free = False                  # timed out: nothing held until the next command
+        self.latest = -math.inf            # the latest command stamp [s of sim time]
+        self.timeouts = 0                  # frames let go by the timeout
+        self._since = self._sent = 0.0     # [s of wall time] held since, last (re)published
+
+    def held_at(self, t: float, now: float) -> bool:
+        """The frame at sim time ``t`` was published at wall time ``now``: hold the world there
+        (unless it runs free after a timeout). Returns whether it is held."""
+        if self.free:
+            return False
+        self.t, self._since, self._sent = float(t), now, now
+        return True
+
+    def on_command(self, stamp: float) -> None:
+        """A command stamped ``stamp`` [s of sim time] arrived; it re-arms a free world."""
+        self.latest = max(self.latest, float(stamp))
+        self.free = False
+
+    def poll(self, now: float) -> str:
+        """``'go'``: step on (nothing held, the command came, or the timeout let the frame go:
+        then :attr:`timeouts` counts it); ``'resend'``: still held, re-publish the frame now;
+        ``'wait'``: still held."""
+        if self.t is None:
+            return 'go'
+        if self.latest >= self.t - self.tolerance:
+            self.t = None
+            return 'go'
+        if now - self._since >= self.timeout:
+            self.t, self.free = None, True
+            self.timeouts += 1
+            return 'go'
+        if now - self._sent >= self.resend:
+            self._sent = now
+            return 'resend'
+        return 'wait'
 
 
 def _split(values: dict) -> tuple[dict, dict]:
@@ -105,32 +203,90 @@ class WorldNode(Node):
         self.pub_info = self.create_publisher(CameraInfo, 'camera_info',
                                               qos_profile_sensor_data)
         self.sub_cmd = self.create_subscription(TwistStamped, 'cmd_vel', self._on_cmd, 10)
+        self.pub_truth = (self.create_publisher(Odometry, 'ground_truth', 10)
+                          if self.cfg.ground_truth else None)
+        #: lockstep's rule (None: no lockstep) and the held frame's messages
+        self.hold = FrameHold(self.cfg.command_timeout) if self.cfg.lockstep else None
+        self._held: list[tuple[Publisher, Any]] = []
         w = self.world
         x, y, yaw = w.start_pose
         self.get_logger().info(
             f'Husky at ({x:.2f}, {y:.2f}, {yaw:.2f} rad) in {w.arena.source} scaled to '
-            f'{w.params.size} m; real time x{self.cfg.real_time_factor or "max"}')
+            f'{w.params.size} m; real time x{self.cfg.real_time_factor or "max"}'
+            + (f'; lockstep (command_timeout {self.cfg.command_timeout:g} s)'
+               if self.hold is not None else ''))
 
     def _on_cmd(self, msg: TwistStamped) -> None:
         if not self.world.set_command(*conv.command_from_msg(msg)):
             self.get_logger().warning('a cmd_vel with NaN or inf: wheels set to zero',
                                       throttle_duration_sec=1.0)
+        if self.hold is not None:
+            self.hold.on_command(conv.from_time(msg.header.stamp))
 
-    def tick(self) -> None:
-        """Publish what is due for the current state, then step the physics once."""
-        w, n, t = self.world, self.world.steps, self.world.t
-        if self.every['clock'].due(n):
-            self.pub_clock.publish(conv.clock_msg(t))
-        if self.every['odom'].due(n):
-            self.pub_odom.publish(conv.odom_msg(w.odom(), t))
-        if self.every['scan'].due(n):
-            self.pub_scan.publish(conv.scan_msg(w.scan(), w.scan_angles, RANGE_MIN,
-                                                w.params.range_max, 1.0 / self.cfg.scan_rate,
-                                                t))
-        if self.every['image'].due(n):
-            self.pub_image.publish(conv.image_msg(w.image(), t))
-            self.pub_info.publish(conv.camera_info_msg(w.intrinsics, t))
-        w.step(1)
+    def _messages(self, name: str, t: float) -> list[tuple[Publisher, Any]]:
+        """The messages of schedule ``name`` for the current state, stamped ``t``."""
+        w = self.world
+        if name == 'clock':
+            return [(self.pub_clock, conv.clock_msg(t))]
+        if name == 'odom':
+            out = [(self.pub_odom, conv.odom_msg(w.odom(), t))]
+            if self.pub_truth is not None:
+                x, y, yaw = w.pose()
+                out.append((self.pub_truth, conv.odom_msg(Odom(x, y, yaw, 0.0, 0.0), t, 'map')))
+            return out
+        if name == 'scan':
+            return [(self.pub_scan, conv.scan_msg(w.scan(), w.scan_angles, RANGE_MIN,
+                                                  w.params.range_max,
+                                                  1.0 / self.cfg.scan_rate, t))]
+        return [(self.pub_image, conv.image_msg(w.image(), t)),
+                (self.pub_info, conv.camera_info_msg(w.intrinsics, t))]
+
+    def publish(self) -> None:
+        """Publish what is due for the current state (``/clock`` first); after an image, under
+        lockstep, hold the world at this instant with all five of its messages to re-send."""
+        n, t = self.world.steps, self.world.t
+        sent: dict[str, list[tuple[Publisher, Any]]] = {}
+        for name, every in self.every.items():
+            if every.due(n):
+                sent[name] = self._messages(name, t)
+                for pub, msg in sent[name]:
+                    pub.publish(msg)
+        if ('image' in sent and self.hold is not None
+                and self.hold.held_at(t, time.monotonic())):
+            self._held = [m for name in self.every
+                          for m in (sent[name] if name in sent else self._messages(name, t))]
+
+    def wait_for_command(self, executor: SingleThreadedExecutor,
+                         stop: Callable[[], bool] = lambda: False) -> None:
+        """Lockstep: while the frame just published is held (:class:`FrameHold`), serve the
+        callbacks and re-publish it every :data:`RESEND_EVERY` s; return when the world may
+        step on (at once without lockstep or a held frame), rclpy shuts down or ``stop()``."""
+        hold = self.hold
+        if hold is None:
+            return
+        t, timeouts = hold.t, hold.timeouts
+        while rclpy.ok() and not stop():
+            state = hold.poll(time.monotonic())
+            if state == 'go':
+                break
+            if state == 'resend':
+                for pub, msg in self._held:
+                    pub.publish(msg)
+            executor.spin_once(timeout_sec=HOLD_SPIN)
+        self._held = []
+        if hold.timeouts > timeouts:
+            self.get_logger().warning(
+                f'lockstep: no cmd_vel stamped at or after {t:.4f} s within '
+                f'{hold.timeout:g} s of wall time: running free until the next cmd_vel')
+
+    def tick(self, executor: SingleThreadedExecutor | None = None,
+             stop: Callable[[], bool] = lambda: False) -> None:
+        """Publish what is due for the current state; under lockstep, given the ``executor``
+        that serves the commands, wait while it is held; then step the physics once."""
+        self.publish()
+        if executor is not None:
+            self.wait_for_command(executor, stop)
+        self.world.step(1)
 
     def destroy_node(self) -> None:
         self.world.close()
@@ -141,12 +297,12 @@ def run(node: WorldNode, executor: SingleThreadedExecutor,
         stop: Callable[[], bool] = lambda: False) -> None:
     """Step the world at ``real_time_factor`` x the wall clock until rclpy shuts down or
     ``stop()``, taking the commands every :data:`SPIN_EVERY` steps (and while waiting for the
-    wall clock)."""
+    wall clock, or for a command under lockstep)."""
     rtf = node.cfg.real_time_factor
     wall0, t0 = time.monotonic(), node.world.t
     since = 0
     while rclpy.ok() and not stop():
-        node.tick()
+        node.tick(executor, stop)
         since += 1
         if since < SPIN_EVERY:
             continue

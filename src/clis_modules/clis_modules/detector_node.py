@@ -41,12 +41,14 @@ Parameters: ``profile`` (a name of ``config/robots``, or a profile file; default
 from __future__ import annotations
 
 from clis_base.params import build, dataclass, param
+from clis_base.ros.executor import make_executor
 from clis_base.ros.process import start_node
+from clis_base.ros.profiling import start_profile, stop_profile
 from clis_base.ros.qos import STREAM_DEPTH
 from clis_base.ros.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.core.profile import RobotProfile, Topics, load_profile
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState
@@ -171,13 +173,15 @@ class DetectorNode(Node):
 def main(args: list[str] | None = None) -> None:
     print_help_and_exit_if_asked(__doc__, args)
     node, _ = start_node('detector', DetectorNode, args, flag_signals=False)
-    executor = SingleThreadedExecutor()
+    executor = make_executor('lean', node.get_logger())
     executor.add_node(node)
+    profiler = start_profile()
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        stop_profile(profiler, 'detector')
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -43,7 +43,9 @@ import math
 import time
 
 from clis_base.params import ConfigError, build, config_dir, dataclass, param, ros_parameters
+from clis_base.ros.executor import make_executor
 from clis_base.ros.process import reraise_unless_shut_down, start_node
+from clis_base.ros.profiling import start_profile, stop_profile
 from clis_base.ros.ros_params import declare_from_config, print_help_and_exit_if_asked
 from cr_sim.core.arena import load_arena
 from cr_sim.core.episodes import Event
@@ -55,7 +57,7 @@ import numpy as np
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
@@ -65,6 +67,7 @@ from cr_bridge.core.ros_robot import (
     INTERFACE_TOPICS,
     ROBOT_TOPICS,
     Freshness,
+    Lockstep,
     RobotReader,
     choose_cmd_vel_type,
     clashes,
@@ -98,6 +101,14 @@ class RobotNodeParams(RobotSideParams):
     watchdog: float = param(0.01, 60.0, doc='no wheels_cmd for this long -> zero command [s]')
     exit_timeout: float = param(0.0, 10.0, doc='at exit, wait at most this long for the robot '
                                 'to acknowledge the zero command; 0 = do not wait [s wall]')
+    lockstep: bool = param(doc='the robot waits for its controller (our simulator and the '
+                           'Husky world offer it): read each camera frame once the odometry '
+                           'and scan of its instant are in (not on the timer) and answer it '
+                           'with one cmd_vel stamped with it; at the decision instants of '
+                           'decision_periods, with the decision on it')
+    decision_periods: tuple[float, ...] = param(0.0, 60.0, doc="lockstep: the graph's decision "
+                                                'periods tau_i [s] (clis run sets them); 0 = '
+                                                'every frame of an episode waits for a decision')
 
 
 class RobotNode(Node):
@@ -132,6 +143,9 @@ class RobotNode(Node):
                                       goal_width=rules.goal_width)
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
         self.fresh = Freshness(INPUTS, profile.episode.stale_timeout)
+        self.lock = (Lockstep(self.cfg.decision_periods, self.cfg.period) if self.cfg.lockstep
+                     else None)
+        self.stamps = dict.fromkeys(INPUTS, -math.inf)     # each input's latest stamp
         self.state = 'waiting'                  # 'running', 'stale'
         self.t = -math.inf                      # the last reading's time
         self.scan = None
@@ -172,7 +186,8 @@ class RobotNode(Node):
         self.get_logger().info(
             f'profile {self.cfg.profile}: odom {robot["odom"]}, scan {robot["scan"]}, cmd_vel '
             f'{self.cmd_vel_topic} ({self.setting}); stale timeout '
-            f'{profile.episode.stale_timeout} s, start {self.cfg.start}')
+            f'{profile.episode.stale_timeout} s, start {self.cfg.start}'
+            + (', lockstep' if self.lock is not None else ''))
 
     # ------------------------------------------------------------------ helpers
 
@@ -218,21 +233,40 @@ class RobotNode(Node):
         """``name`` read at ``stamp``, the sim time it describes (its arrival time when the
         robot does not stamp it): a reading that waited in a queue is as old as its stamp."""
         now = self.now_s()
-        self.fresh.seen(name, stamp if 0.0 < stamp <= now else now)
+        self.stamps[name] = stamp
+        if self.lock is not None:           # the robot waits: the frame's time is its stamp
+            self.fresh.seen(name, stamp)
+            self._frame()
+        else:
+            self.fresh.seen(name, stamp if 0.0 < stamp <= now else now)
 
     def _on_odom(self, msg) -> None:
         t, pose, v, w = bconv.odom_from_msg(msg)
+        if self.lock is not None and t < self.stamps['camera'] - 1e-6:
+            return                          # lockstep: an older one overtaken (resent)
         self.odom = (pose, v, w)
         self._seen('odom', t)
 
     def _on_scan(self, msg) -> None:
-        self.scan = bconv.scan_from_msg(msg)
-        self._seen('scan', self.scan.t)
+        scan = bconv.scan_from_msg(msg)
+        if self.lock is not None and scan.t < self.stamps['camera'] - 1e-6:
+            return
+        self.scan = scan
+        self._seen('scan', scan.t)
 
     def _on_camera(self, msg) -> None:
         t, bearings, widths = bconv.blobs_from_msg(msg, self.blob_names)
+        if self.lock is not None and t <= self.t:
+            return                          # lockstep: a frame read already (resent)
         self.blobs = (bearings, widths)
         self._seen('camera', t)
+
+    def _frame(self) -> None:
+        """Lockstep: read the frame whose camera, odometry and scan are all in."""
+        st = self.stamps
+        t = self.lock.frame(st['camera'], st['odom'], st['scan'], self.t)
+        if t is not None:
+            self._reading(t)
 
     def _on_cmd(self, msg) -> None:
         if self.state != 'running':
@@ -246,7 +280,9 @@ class RobotNode(Node):
         if not self.guard.command(u, now):
             self.get_logger().warning(f'rejected a non-finite wheels_cmd {u.tolist()}: zero '
                                       'command', throttle_duration_sec=1.0)
-        self._drive(now)
+        # lockstep: stamped with the frame read last, which it answers (a command stamped with
+        # the clock could release a frame the adapter has not read yet)
+        self._drive(self.t if self.lock is not None else now)
 
     def _on_reset(self, request, response):
         ev, response.message = self.episodes.end_by_service(self.t, time.monotonic())
@@ -260,11 +296,26 @@ class RobotNode(Node):
 
     def _tick(self) -> None:
         now = self.now_s()
-        if now < self.t - 1e-9:
+        # (lockstep: the frames are read before their /clock arrives; the clock of a robot
+        # that restarted goes back by more than the inputs' timeout)
+        back = 1e-9 if self.lock is None else self.fresh.timeout
+        if now < self.t - back and (self.lock is None or now > 0.0):
             self._clock_went_back(now)
+            return
+        if self.lock is not None:
+            # the frames are read as they come (_frame); the timer watches their age only, from
+            # the newest input (the next frame's odometry may come before its /clock)
+            newest = max([now, *(t for t in self.fresh.last.values() if t is not None)])
+            stale = self.fresh.stale(newest) if now > self.t else ()
+            if stale and self.state == 'running':
+                self._stale(stale, now)
             return
         if now <= self.t:
             return
+        self._reading(now)
+
+    def _reading(self, now: float) -> None:
+        """The readings, rewards and events of instant ``now``, and the command in force."""
         stale = self.fresh.stale(now)
         if stale:
             if self.state == 'running':
@@ -294,6 +345,9 @@ class RobotNode(Node):
                 self.guard.stop()
                 self._publish_event(ev)
         self.wander_u = step.wander
+        if self.lock is not None and self.lock.waits(now, self.episodes.book.t0,
+                                                     self.episodes.running):
+            return                          # the arbiter's decision on it answers it
         self._drive(now)
 
     def _stale(self, stale: tuple[str, ...], now: float) -> None:
@@ -319,6 +373,7 @@ class RobotNode(Node):
             self._stale(('clock',), now)
         self.t = -math.inf
         self.fresh.forget()
+        self.stamps = dict.fromkeys(INPUTS, -math.inf)
         self.next_marker_t = 0.0
 
     # ------------------------------------------------------------------ outputs
@@ -348,9 +403,11 @@ class RobotNode(Node):
                                         frame))
         self.pub_ir_ranges.publish(conv.ir_ranges_msg(r.ir, t, frame))
         self.pub_wheels.publish(conv.wheels_msg(r.wheels, t, frame))
-        self.pub_odom.publish(conv.odom_msg(pose, r.wheels, self.wheel_base, t,
-                                            self.cfg.map_frame, frame))
-        if t >= self.next_marker_t - 1e-6:
+        # display only (no module reads them): built only for a subscriber
+        if self.pub_odom.get_subscription_count():
+            self.pub_odom.publish(conv.odom_msg(pose, r.wheels, self.wheel_base, t,
+                                                self.cfg.map_frame, frame))
+        if t >= self.next_marker_t - 1e-6 and self.pub_markers.get_subscription_count():
             self.next_marker_t = t + self.cfg.markers_period
             self.pub_markers.publish(conv.MarkerArray(markers=[conv.robot_marker(
                 pose, self.profile.body.radius, t, self.cfg.map_frame)]))
@@ -373,8 +430,9 @@ def main(args: list[str] | None = None) -> None:
     # Ctrl-C and SIGTERM only raise a flag: the robot gets its zero command from a live
     # context
     node, stopping = start_node('robot', RobotNode, args)
-    executor = SingleThreadedExecutor()
+    executor = make_executor('lean', node.get_logger())
     executor.add_node(node)
+    profiler = start_profile()
     try:
         while rclpy.ok() and not stopping:
             executor.spin_once(timeout_sec=0.05)
@@ -383,6 +441,7 @@ def main(args: list[str] | None = None) -> None:
     except Exception:                   # noqa: BLE001 - taking after a shutdown signal
         reraise_unless_shut_down()
     finally:
+        stop_profile(profiler, 'robot')
         if rclpy.ok():
             node.stop_robot()
         node.destroy_node()

@@ -105,7 +105,7 @@ class SimNodeParams:
                            'world for the standard path: one unending run from the first '
                            'start, never teleported, the goal and the time limit end nothing, '
                            'no episode or reward messages, reset does nothing, '
-                           'wait_for_learner and lockstep ignored')
+                           'wait_for_learner ignored, lockstep holds at every tick')
     executor: str = param(choices=('lean', 'single'), doc="rclpy executor: 'lean' "
                           "(clis_base.ros.executor.LeanExecutor) or 'single' "
                           '(SingleThreadedExecutor)')
@@ -253,15 +253,21 @@ class SimNode(Node):
         t = self.core.sim_time
         frame = self.cfg.base_frame
         obs, wheels = self.core.readings_now(readings)
+        # (world mode: the robot interface's topics only for their subscribers; the CLIS graph
+        # reads the robot adapter's)
+        world = not self.core.episodes
         self._last = [] if obs is None else [
-            (self.pub_ir, conv.ir_msg(obs.ir, self.ir_angles, self.params.sensors.ir_range, t,
-                                      frame)),
-            (self.pub_ir_ranges, conv.ir_ranges_msg(obs.ir, t, frame)),
-            (self.pub_camera, conv.bearings_msg(
-                self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame))]
+            (pub, make()) for pub, make in (
+                (self.pub_ir, lambda: conv.ir_msg(obs.ir, self.ir_angles,
+                                                  self.params.sensors.ir_range, t, frame)),
+                (self.pub_ir_ranges, lambda: conv.ir_ranges_msg(obs.ir, t, frame)),
+                (self.pub_camera, lambda: conv.bearings_msg(
+                    self.blob_names, [obs.dest_bearing, *obs.landmark_bearings], t, frame)))
+            if not world or pub.get_subscription_count()]
         if obs is not None and self.standard is not None:
             self._last += self.standard.messages(t, self.sim.pose, obs.ir)
-        self._last.append((self.pub_wheels, conv.wheels_msg(wheels, t, frame)))
+        if not world or self.pub_wheels.get_subscription_count():
+            self._last.append((self.pub_wheels, conv.wheels_msg(wheels, t, frame)))
         # display only (ground truth, never a module input): built only for a subscriber
         if self.pub_odom.get_subscription_count():
             self._last.append((self.pub_odom, conv.odom_msg(

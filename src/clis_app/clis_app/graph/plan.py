@@ -8,6 +8,7 @@ processes, :mod:`clis_app.graph.single` as nodes of one process).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 import subprocess
@@ -96,7 +97,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
                arena: str = '', robot: str = 'sim', device: str = 'emulator',
                record: str = '', realtime: int = 0, first_episode: int = 1,
                resume_state: str = '', learn_until: int = 0,
-               clis_overrides: dict[str, Any] | None = None, profile: str = '') -> GraphPlan:
+               clis_overrides: dict[str, Any] | None = None, profile: str = '',
+               lockstep: bool = False) -> GraphPlan:
     """The nodes of ``condition``, with the parameters ``clis run`` gives each;
     ``realtime`` > 0: the sensor-to-command path (simulator, modules, arbiter) under
     ``SCHED_FIFO`` from that priority up (:data:`REALTIME_ABOVE`,
@@ -106,7 +108,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     episode that starts once that many are learned in all (``learner_node.episodes``);
     ``clis_overrides``: the CLIS keys of the run's ``--params`` files (dotted), which the nodes
     read too (the periods the simulator holds at, the arbiter's selection). ``robot`` 'ros':
-    a robot already on the ROS graph, driven by its ``profile`` (:func:`_plan_ros`)."""
+    a robot already on the ROS graph, driven by its ``profile`` (:func:`_plan_ros`;
+    ``lockstep``: the robot waits for the graph)."""
     from clis_learner.core.config import load_clis_params
     from clis_modules.core.arbiter import refuse_bonus
     from clis_modules.core.modules import condition_periods, condition_sensors
@@ -142,7 +145,7 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         _plan_bridge(plan, seed, speed, arena, device)
         return plan
     if robot == 'ros':
-        _plan_ros(plan, seed, profile, speed, arena)
+        _plan_ros(plan, seed, profile, speed, arena, [tau for _, tau in periods], lockstep)
         return plan
     # the first episode waits until DDS has matched the graph's subscribers of the robot
     # interface (a message sent before is lost to them: the learner's first rewards, a
@@ -193,30 +196,42 @@ ROS_NAMESPACE = '/clis'
 
 
 def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
-              arena: str = '') -> None:
+              arena: str = '', periods: Sequence[float] = (), lockstep: bool = False) -> None:
     """A robot already on the ROS graph (its ``odom``, ``scan``, ``image_raw`` and
     ``camera_info`` at the root or under its profile's namespace; ``cmd_vel`` taken): the CLIS
     graph in :data:`ROS_NAMESPACE`, with the blob detector (the robot's image to the ``camera``
     bearings) and the robot adapter (cr_bridge ``robot``: the robot interface from the robot's
     own sensors, episodes and safety) as the robot interface. Both follow the robot's
-    ``/clock``; the robot does not wait for the graph (no lockstep). A profile whose robot is
-    our simulator (its ``simulator: cr_sim``): the simulator too, at the root, as a plain world
+    ``/clock``. The robot does not wait for the graph unless ``lockstep`` (a robot that holds
+    its clock at each camera frame until the ``cmd_vel`` answering it: the adapter's
+    ``node.lockstep``, at the condition's decision ``periods``). A profile whose robot is our
+    simulator (its ``simulator: cr_sim``): the simulator too, at the root, as a plain world
     (``node.episodes`` false: the adapter makes the episodes) that publishes its camera image
-    (``node.standard_topics``), at ``speed``."""
+    (``node.standard_topics``), at ``speed``, always in lockstep (as under ``--robot sim``),
+    its first tick once the detector and the adapter have matched its topics."""
     from cr_sim.core.profile import load_profile
     plan.namespace = ROS_NAMESPACE
     for child in plan.children:
         child.remaps['__ns'] = ROS_NAMESPACE
-    if load_profile(profile).simulator == 'cr_sim':  # the robot: the simulator, at the root
+    robot = load_profile(profile)
+    if robot.simulator == 'cr_sim':                  # the robot: the simulator, at the root
+        lockstep = True
+        top = robot.topics
         plan.children.append(Child('sim', 'cr_sim', 'sim', {
             'node.episodes': False, 'node.standard_topics': True,
             'node.speed_factor': float(speed), 'node.seed': seed, 'node.arena_file': arena,
-            'node.start': 'A'}, restart='never', follows_episodes=False))
+            'node.start': 'A', 'node.lockstep': True,
+            'node.start_subscribers': [f'{top.image}:1', f'{top.scan}:1', f'{top.odom}:1',
+                                       f'{top.cmd_vel}:1']},
+            restart='never', follows_episodes=False))
     plan.children.append(Child('detector', 'clis_modules', 'detector', {
-        'profile': profile, 'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE},
+        'profile': profile, 'overlay': False,        # the overlay only for a subscriber
+        'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE},
         follows_episodes=False))
     plan.children.append(Child('robot', 'cr_bridge', 'robot', {
         'node.profile': profile, 'node.seed': seed, 'node.wait_for_learner': True,
+        'node.lockstep': bool(lockstep),
+        'node.decision_periods': [float(p) for p in periods] or [0.0],
         'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE}, restart='never'))
 
 

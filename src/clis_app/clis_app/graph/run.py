@@ -123,6 +123,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--profile', default='', metavar='NAME',
                    help='with --robot ros: the robot profile, a name of config/robots (cr, '
                         'turtlebot4, husky) or a file')
+    p.add_argument('--lockstep', action='store_true',
+                   help='with --robot ros: the robot waits for the graph, holding its clock '
+                        'at each camera frame until the cmd_vel that answers it (a simulator '
+                        "that offers it: the Husky world's -p lockstep:=true); the run is then "
+                        'the same on any host. Our simulator (profile cr) always does')
     p.add_argument('--device', default='emulator', metavar='URL',
                    help="with --robot bridge: 'emulator' (default: cr_bridge's device emulator "
                         'on the loopback; --speed X runs its clock X times wall time) or the '
@@ -216,7 +221,7 @@ def _check_args(args: argparse.Namespace) -> str | None:
         if args.single_process:
             return '--single-process runs the simulator only: not with --robot ros'
         if robot.simulator == 'cr_sim':
-            args.speed = args.speed or 1.0    # the simulator as the robot: it does not wait
+            args.lockstep = True              # our simulator waits for the graph, as ever
         elif args.speed != 0:
             return f"--speed {args.speed}: the robot's own clock sets the pace with --robot ros"
         if args.arena:
@@ -224,6 +229,9 @@ def _check_args(args: argparse.Namespace) -> str | None:
                    '(its arena section)'
     elif args.profile:
         return f'--profile {args.profile}: only with --robot ros'
+    elif args.lockstep:
+        return '--lockstep: only with --robot ros (the simulator of --robot sim always waits ' \
+               'for the graph)'
     if args.robot == 'bridge':
         if args.single_process:
             return '--single-process runs the simulator only: not with --robot bridge'
@@ -403,7 +411,7 @@ def main(args: argparse.Namespace) -> int:
                           args.robot, args.device,
                           str(args.record.resolve()) if args.record else '', args.realtime,
                           args.first_episode, args.sim_state, args.version + args.episodes,
-                          args.clis_overrides, args.profile)
+                          args.clis_overrides, args.profile, getattr(args, 'lockstep', False))
     except ValueError as exc:                        # a module no plug-in or section names
         print(f'clis run: --condition {args.condition}: {exc}', file=sys.stderr)
         return EXIT_CONFIG

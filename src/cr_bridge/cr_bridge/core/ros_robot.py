@@ -1,7 +1,7 @@
 """A differential-drive robot on the ROS graph read as the Cyber Rodent: the robot adapter's core.
 
-The adapter (its node is still to come) drives a robot that is already on the ROS graph (its
-``odom``, ``scan`` and ``cmd_vel``) by its profile
+The adapter (``ros2 run cr_bridge robot``, :mod:`cr_bridge.robot_node`) drives a robot that
+is already on the ROS graph (its ``odom``, ``scan`` and ``cmd_vel``) by its profile
 (:mod:`cr_sim.core.profile`). What it computes is here, without rclpy or message types
 (messages arrive as arrays, :mod:`cr_bridge.conversions`):
 
@@ -12,6 +12,8 @@ The adapter (its node is still to come) drives a robot that is already on the RO
 * :func:`episode_rules`: the episode core's rules from the profile (reached by the
   destination's apparent width or its range, collision from the sectors, time limit, wander);
 * :class:`Freshness`: which inputs are stale (older than the profile's ``stale_timeout``);
+* :class:`Lockstep`: with a robot that waits for its controller (our simulator's and the Husky
+  world's lockstep), which frame to read and which frames wait for the arbiter's decision;
 * :func:`choose_cmd_vel_type`: Twist or TwistStamped, from the parameter or from the types of
   the robot's ``cmd_vel`` subscribers on the graph;
 * :func:`robot_topic`, :func:`clashes`: the robot's topic names (absolute) and the check that
@@ -25,6 +27,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 import math
 
+from clis_base.instants import TOL, DecisionClock
 from clis_base.params import ConfigError, build
 from cr_sim.core.arena import Arena, Box, scaled_arena  # noqa: F401 - its users' one import
 from cr_sim.core.profile import RobotProfile, ScanSpec, Topics
@@ -36,7 +39,8 @@ from cr_bridge.core.episode import ContactParams, Reading
 
 __all__ = [
     'CMD_VEL_MSG_TYPES', 'ROBOT_TOPICS', 'INTERFACE_TOPICS', 'Scan', 'SectorReader',
-    'RobotReader', 'EpisodeRules', 'episode_rules', 'Freshness', 'choose_cmd_vel_type',
+    'RobotReader', 'EpisodeRules', 'episode_rules', 'Freshness', 'Lockstep',
+    'choose_cmd_vel_type',
     'robot_topic', 'clashes', 'finite_or_zero', 'scaled_arena',
 ]
 
@@ -286,6 +290,49 @@ class Freshness:
     def never(self) -> tuple[str, ...]:
         """The inputs that never arrived."""
         return tuple(k for k, t in self.last.items() if t is None)
+
+
+class Lockstep:
+    """A robot that waits for its controller: it holds its clock after each camera frame until
+    a ``cmd_vel`` stamped at or after the frame arrives (our simulator's ``node.lockstep`` in
+    world mode, the Husky world's ``lockstep``). The adapter then reads each frame once the
+    camera's bearings (the detector's, stamped with the image) and the odometry and scan of its
+    instant are in, and answers every frame with one ``cmd_vel`` stamped with it: at once, with
+    the command in force, unless an episode runs and the frame is a decision instant
+    ``t_0 + l tau_i`` of the graph's modules (the instants the module nodes decide at), where
+    the arbiter's decision on that frame answers it. The run is then the same on any host, as
+    the native graph's lockstep makes it.
+
+    Parameters
+    ----------
+    periods : sequence of float
+        The modules' decision periods ``tau_i`` [s]; none above 0: every frame of an episode
+        waits for a decision.
+    dt : float
+        The decision grid's tick [s] (the modules' ``episode.dt``).
+    """
+
+    def __init__(self, periods: Sequence[float], dt: float) -> None:
+        taus = [float(p) for p in periods if p > 0.0]
+        self.clock = DecisionClock(taus, dt) if taus else None
+
+    @staticmethod
+    def frame(camera: float, odom: float, scan: float, last: float) -> float | None:
+        """The instant to read now: the camera's latest stamp once odometry and scan stamped
+        at or after it are in and it is after ``last`` (the frame read last); else None."""
+        if camera > last + TOL and odom >= camera - TOL and scan >= camera - TOL:
+            return camera
+        return None
+
+    def waits(self, t: float, t0: float, running: bool) -> bool:
+        """Whether frame ``t`` waits for the arbiter's decision (an episode started at ``t0``
+        runs and a module decides at ``t``)."""
+        if not running:
+            return False
+        if self.clock is None:
+            return True
+        k = self.clock.tick(t, t0)
+        return k is not None and bool(self.clock.due_at(k))
 
 
 def choose_cmd_vel_type(setting: str, subscriber_types: Iterable[str]) -> tuple[str | None, str]:

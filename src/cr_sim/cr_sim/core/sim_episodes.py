@@ -30,9 +30,11 @@ for a node that makes the episodes itself from the robot's own sensors (the robo
 the standard path). One unending run from the first start (the start rule as above): an
 ``endless`` :class:`~cr_sim.core.sim.Simulator` (the goal and the time limit end nothing),
 never teleported (:meth:`SimEpisodes.start` places the robot once, :meth:`SimEpisodes.reset`
-does nothing), no events, no rewards summed; the learner gate and lockstep are switched off
-(the graph gate before the run still holds). The clock, the commands, the watchdog and the
-readings are as above.
+does nothing), no events, no rewards summed; the learner gate is switched off (the graph gate
+before the run still holds). Lockstep, if on, holds the clock at every tick until a command
+stamped at or after it arrives (the world does not know the controller's decision instants: the
+robot adapter answers every reading, at a decision instant with the decision). The clock, the
+commands, the watchdog and the readings are as above.
 
 Pure: no ROS; wall time is read from an injected clock (``time.monotonic`` by default).
 """
@@ -94,8 +96,8 @@ class SimEpisodes:
     readings : str
         One of :data:`READINGS`.
     episodes : bool
-        Serve episodes (else world mode, module docstring: ``gate``'s learner gate and
-        lockstep are switched off).
+        Serve episodes (else world mode, module docstring: ``gate``'s learner gate is switched
+        off, its lockstep holds at every tick).
     clock : callable
         Wall time [s], monotonic.
 
@@ -121,7 +123,8 @@ class SimEpisodes:
         self.dt = params.episode.dt
         self.episodes = episodes
         if not episodes:                    # world mode: nothing waits for a learner
-            gate.wait_for_learner = gate.lockstep = False
+            gate.wait_for_learner = False
+            gate.hold_periods, gate.clock = (), None    # lockstep: held at every tick
         self.placed = False                 # world mode: the robot stands at its start
         # the headless runner's streams: the simulator (seed, 0) and the starts (seed, 1), each
         # continuous over the episodes (a resumed run sets them from resume_state)
@@ -266,7 +269,8 @@ class SimEpisodes:
     def stale(self, stamp: float | None) -> bool:
         """Under lockstep, whether a command stamped ``stamp`` was decided in an earlier
         episode (it is ignored)."""
-        return bool(self.gate.lockstep and stamp and stamp < self.book.t0 - 1e-6)
+        return bool(self.episodes and self.gate.lockstep and stamp
+                    and stamp < self.book.t0 - 1e-6)
 
     def command(self, u: ArrayLike, stamp: float | None) -> tuple[float, float | None]:
         """The wheels ``u`` (clamped by the simulator) are in force from now on:
