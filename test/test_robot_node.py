@@ -201,7 +201,7 @@ def test_a_namespaced_node_with_remapped_robot_topics(fake):
         assert robot.run_until(lambda: any(moving(m) for m in robot.cmds)), robot.cmds[-3:]
         assert robot.run_until(lambda: all(len(v) > 3 for k, v in robot.msgs.items()
                                            if not k.endswith('episode'))
-                               and robot.msgs[f'{NS}/episode'], timeout=5.0), \
+                               and robot.msgs[f'{NS}/episode'], timeout=15.0), \
             {k: len(v) for k, v in robot.msgs.items()}
         n = robot.node
         graph = {name: [i.node_name for i in n.get_publishers_info_by_topic(name)]

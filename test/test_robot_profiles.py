@@ -16,6 +16,7 @@ from cr_sim.core.profile import ColourSpec, load_profile
 from cr_sim.core.render import DESTINATION_COLOUR, RenderParams
 from cr_sim.core.robot import load_robot_params
 from cr_sim.core.sim import load_sim_params
+import numpy as np
 import pytest
 import yaml
 
@@ -197,3 +198,33 @@ def test_profiles_are_found_through_the_config_folder(tmp_path, monkeypatch):
     assert prof.PROFILE_NAMES() == ()
     with pytest.raises(ConfigError, match="unknown robot profile 'cr': known profiles: none"):
         load_profile('cr')
+
+
+@pytest.mark.parametrize('heading', [0.0, 1.0, 2.5])
+def test_the_cr_profiles_reached_rule_holds_where_the_simulators_does(heading):
+    """Through the standard path the destination is reached when its blob looks at least
+    ``episode.reached.width_deg`` wide: on the rendered strip that must happen where the
+    simulator's rule does (the robot's centre within the goal radius), and the destination
+    must stay in the image nearer still (a marker lower than the camera left the strip's rows
+    there, and no episode was ever reached). The robot walks in 5 mm steps toward the
+    destination, from any side, at any heading."""
+    from clis_modules.detector_node import detector_of
+    from cr_sim.core.render import Scene, render
+    p = load_profile('cr')
+    arena = load_arena()
+    sensors = load_sim_params().sensors
+    scene = Scene.from_arena(arena, RenderParams(camera_range=sensors.camera_range,
+                                                 destination_range=sensors.destination_range))
+    camera, detector = p.camera.camera_model(), detector_of(p)
+    dest, goal = arena.destination, arena.destination.goal_radius
+    r = RenderParams().target_radius
+    side = heading + 0.7
+    widths = []
+    for d in np.arange(0.4, r + 0.01, -0.005):
+        pose = np.array([dest.x - d * math.cos(side), dest.y - d * math.sin(side), heading])
+        found = detector.frame(render(scene, camera, pose), 'rgb8')
+        widths.append((d, math.degrees(found.widths[0])))
+    assert all(math.isfinite(w) for _, w in widths), 'the destination left the image'
+    first = next(d for d, w in widths if w >= p.episode.reached.width_deg)
+    assert goal - 0.005 <= first <= goal + 0.0075, (first, widths)
+    assert all(w >= p.episode.reached.width_deg for d, w in widths if d <= first)

@@ -87,7 +87,10 @@ class RenderParams:
     wall_height, tall_height, short_height : float
         Heights of the walls and of the obstacles, in (0, 10].
     landmark_height, destination_height : float
-        Heights of the target cylinders, in (0, 10].
+        Heights of the target cylinders, in (0, 10]. Both above the camera by default: a
+        post that crosses the horizon is in the image at any range, as the simulator's camera
+        sees its bearing (a destination lower than the camera would leave the strip's rows
+        near the goal, where the reached rule of a profile measures its apparent width).
     camera_range : float
         A target whose centre is farther is not drawn, in [0.1, 100] (the simulator's
         ``sensors.camera_range``).
@@ -101,7 +104,7 @@ class RenderParams:
     tall_height: float = 0.5
     short_height: float = 0.1
     landmark_height: float = 0.5
-    destination_height: float = 0.1
+    destination_height: float = 0.3
     camera_range: float = 5.0
     destination_range: float = 0.0
 
