@@ -87,13 +87,22 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
         if proc.returncode != 0:
             raise RuntimeError(f'{condition} seed {seed}: clis run exited '
                                f'{proc.returncode}\n{proc.stderr[-2000:]}')
-        with open(Path(tmp) / 'run' / 'episodes.csv', newline='') as fh:
-            rows = list(csv.DictReader(fh))
-        late = sum(line.count('did not arrive') for line in
-                   (Path(tmp) / 'run' / 'logs' / 'learner.log').read_text().splitlines())
+        return save_run(Path(tmp) / 'run', out, profile, rtf, lockstep or profile == 'cr',
+                        episode_keys, wall)
+
+
+def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
+             episode_keys: dict, wall: float) -> dict:
+    """The summary of the ``clis run`` in ``run_dir`` (its condition and seed are its
+    episodes'), saved as ``OUT/runs/P-C-seedS.json``."""
+    with open(run_dir / 'episodes.csv', newline='') as fh:
+        rows = list(csv.DictReader(fh))
+    log = run_dir / 'logs' / 'learner.log'
+    late = sum(line.count('did not arrive') for line in
+               (log.read_text().splitlines() if log.is_file() else []))
+    condition, seed = rows[0]['condition'], int(rows[0]['seed'])
     run = {'profile': profile, 'condition': condition, 'seed': seed, 'rtf': rtf,
-           'lockstep': lockstep or profile == 'cr',
-           'episode_keys': episode_keys, 'wall_s': round(wall, 1),
+           'lockstep': lockstep, 'episode_keys': episode_keys, 'wall_s': round(wall, 1),
            'late_warnings': late,
            'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
                          'duration': float(r['duration']), 'ret': float(r['ret']),
@@ -243,21 +252,33 @@ def main() -> int:
                    help='husky: the world waits for the graph (module docstring)')
     p.add_argument('--native', action='store_true',
                    help='cr: the native path on the same conditions and seeds too')
+    p.add_argument('--only', default='', metavar='C:S,...',
+                   help='only these runs (condition:seed), e.g. view:2,async:0')
+    p.add_argument('--adopt', type=Path, action='append', default=[], metavar='RUN_DIR',
+                   help="save the summary of a finished clis run's folder (a run this script "
+                        'started whose parent was stopped), with --wall-s its wall time')
+    p.add_argument('--wall-s', type=float, default=0.0, help='with --adopt')
     p.add_argument('--redraw', action='store_true', help='only the table and the figure')
     args = p.parse_args()
     if args.native and args.profile != 'cr':
         p.error("--native compares our simulator's two paths: --profile cr")
-    if not args.redraw:
+    keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
+    for run_dir in args.adopt:
+        r = save_run(run_dir, args.out, args.profile, args.rtf,
+                     args.lockstep or args.profile == 'cr', keys, args.wall_s)
+        print(f'adopted {r["condition"]} seed {r["seed"]}: {len(r["episodes"])} episodes')
+    if not args.redraw and not args.adopt:
         from concurrent.futures import ThreadPoolExecutor
-        keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
         conditions = args.conditions.split(',')
         if args.native and not all((args.out / 'runs' / f'native-{c}-seed{s}.json').exists()
                                    for c in conditions for s in range(args.seeds)):
             run_native(conditions, args.seeds, args.episodes, args.out, keys)
         # a run whose summary is saved already is not run again (an interrupted benchmark
         # goes on)
+        only = {tuple(x.split(':')) for x in args.only.split(',') if x}
         todo = [(c, s) for c in args.conditions.split(',') for s in range(args.seeds)
-                if not (args.out / 'runs' / f'{args.profile}-{c}-seed{s}.json').exists()]
+                if not (args.out / 'runs' / f'{args.profile}-{c}-seed{s}.json').exists()
+                and (not only or (c, str(s)) in only)]
         base = 120 + (os.getpid() % 50) * 2
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:

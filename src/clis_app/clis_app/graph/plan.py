@@ -201,8 +201,8 @@ def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
     ``camera_info`` at the root or under its profile's namespace; ``cmd_vel`` taken): the CLIS
     graph in :data:`ROS_NAMESPACE`, with the blob detector (the robot's image to the ``camera``
     bearings) and the robot adapter (cr_bridge ``robot``: the robot interface from the robot's
-    own sensors, episodes and safety) as the robot interface. Both follow the robot's
-    ``/clock``. The robot does not wait for the graph unless ``lockstep`` (a robot that holds
+    own sensors, episodes and safety) as the robot interface. The adapter and the CLIS nodes
+    follow the robot's ``/clock`` (the detector stamps with its frames). The robot does not wait for the graph unless ``lockstep`` (a robot that holds
     its clock at each camera frame until the ``cmd_vel`` answering it: the adapter's
     ``node.lockstep``, at the condition's decision ``periods``). A profile whose robot is our
     simulator (its ``simulator: cr_sim``): the simulator too, at the root, as a plain world
@@ -224,9 +224,11 @@ def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
             'node.start_subscribers': [f'{top.image}:1', f'{top.scan}:1', f'{top.odom}:1',
                                        f'{top.cmd_vel}:1']},
             restart='never', follows_episodes=False))
+    # (the detector stamps what it finds with its frame: it reads no clock, so it follows no
+    # /clock either, and is not woken at every tick)
     plan.children.append(Child('detector', 'clis_modules', 'detector', {
-        'profile': profile, 'overlay': False,        # the overlay only for a subscriber
-        'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE},
+        'profile': profile, 'overlay': False},       # the overlay only for a subscriber
+        remaps={'__ns': ROS_NAMESPACE},
         follows_episodes=False))
     plan.children.append(Child('robot', 'cr_bridge', 'robot', {
         'node.profile': profile, 'node.seed': seed, 'node.wait_for_learner': True,
