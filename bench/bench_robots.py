@@ -88,13 +88,14 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
             raise RuntimeError(f'{condition} seed {seed}: clis run exited '
                                f'{proc.returncode}\n{proc.stderr[-2000:]}')
         return save_run(Path(tmp) / 'run', out, profile, rtf, lockstep or profile == 'cr',
-                        episode_keys, wall)
+                        episode_keys, wall, episodes)
 
 
 def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
-             episode_keys: dict, wall: float) -> dict:
+             episode_keys: dict, wall: float, planned: int) -> dict:
     """The summary of the ``clis run`` in ``run_dir`` (its condition and seed are its
-    episodes'), saved as ``OUT/runs/P-C-seedS.json``."""
+    episodes'; ``planned``: the episodes it was started for, more than it has if it was
+    stopped), saved as ``OUT/runs/P-C-seedS.json``."""
     with open(run_dir / 'episodes.csv', newline='') as fh:
         rows = list(csv.DictReader(fh))
     log = run_dir / 'logs' / 'learner.log'
@@ -103,6 +104,7 @@ def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
     condition, seed = rows[0]['condition'], int(rows[0]['seed'])
     run = {'profile': profile, 'condition': condition, 'seed': seed, 'rtf': rtf,
            'lockstep': lockstep, 'episode_keys': episode_keys, 'wall_s': round(wall, 1),
+           'planned': planned,
            'late_warnings': late,
            'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
                          'duration': float(r['duration']), 'ret': float(r['ret']),
@@ -150,6 +152,12 @@ def run_native(conditions: list[str], seeds: int, episodes: int, out: Path,
             (out / 'runs' / f'native-{c}-seed{seed}.json').write_text(json.dumps(run, indent=1))
 
 
+def complete(path: Path, episodes: int) -> bool:
+    """Whether the run saved at ``path`` has ``episodes`` episodes (a stopped run, saved with
+    ``--adopt``, is run again)."""
+    return path.is_file() and len(json.loads(path.read_text())['episodes']) >= episodes
+
+
 def thirds(run: dict) -> list[float]:
     """The success rate of each third of the run's episodes."""
     eps = [e['reached'] for e in sorted(run['episodes'], key=lambda e: e['episode'])]
@@ -176,9 +184,13 @@ def report(out: Path, profile: str) -> str:
     success lies within the other's 95% interval."""
     paths = [profile] + (['native'] if profile == 'cr' else [])
     by: dict[tuple[str, str], list[dict]] = {}
+    partial: list[dict] = []
     for path in paths:
         for f in sorted((out / 'runs').glob(f'{path}-*.json')):
             r = json.loads(f.read_text())
+            if len(r['episodes']) < r.get('planned', 0):
+                partial.append(r)           # stopped: not in the intervals
+                continue
             by.setdefault((r['condition'], path), []).append(r)
     by = dict(sorted(by.items()))
     two = any(path == 'native' for _, path in by)
@@ -201,6 +213,13 @@ def report(out: Path, profile: str) -> str:
             f'{len(rs[0]["episodes"])} | {cell(first)} | {cell(last)} | {per_seed} | '
             f'{sum(r["wall_s"] for r in rs) / len(rs) / 60:.1f} | '
             f'{sum(r["late_warnings"] for r in rs)} |')
+    for r in partial:
+        eps = [e['reached'] for e in r['episodes']]
+        k = len(eps) // 3
+        lines.append(f'\n{r["condition"]} seed {r["seed"]} ({r["profile"]}): stopped after '
+                     f'{len(eps)} of {r["planned"]} episodes, not in the table: reached '
+                     f'{100 * sum(eps[:k]) / max(k, 1):.0f}% of its first third, '
+                     f'{100 * sum(eps[len(eps) - k:]) / max(k, 1):.0f}% of its last')
     if two:
         for cond in sorted({c for c, _ in by}):
             if (cond, profile) in curves and (cond, 'native') in curves:
@@ -265,7 +284,7 @@ def main() -> int:
     keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
     for run_dir in args.adopt:
         r = save_run(run_dir, args.out, args.profile, args.rtf,
-                     args.lockstep or args.profile == 'cr', keys, args.wall_s)
+                     args.lockstep or args.profile == 'cr', keys, args.wall_s, args.episodes)
         print(f'adopted {r["condition"]} seed {r["seed"]}: {len(r["episodes"])} episodes')
     if not args.redraw and not args.adopt:
         from concurrent.futures import ThreadPoolExecutor
@@ -277,8 +296,8 @@ def main() -> int:
         # goes on)
         only = {tuple(x.split(':')) for x in args.only.split(',') if x}
         todo = [(c, s) for c in args.conditions.split(',') for s in range(args.seeds)
-                if not (args.out / 'runs' / f'{args.profile}-{c}-seed{s}.json').exists()
-                and (not only or (c, str(s)) in only)]
+                if not complete(args.out / 'runs' / f'{args.profile}-{c}-seed{s}.json',
+                                args.episodes) and (not only or (c, str(s)) in only)]
         base = 120 + (os.getpid() % 50) * 2
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:
