@@ -108,6 +108,7 @@ def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
            'late_warnings': late,
            'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
                          'duration': float(r['duration']), 'ret': float(r['ret']),
+                         'collisions': int(float(r['collisions'])),
                          'behaviour': r['behaviour']} for r in rows]}
     (out / 'runs').mkdir(parents=True, exist_ok=True)
     (out / 'runs' / f'{profile}-{condition}-seed{seed}.json').write_text(
@@ -148,8 +149,24 @@ def run_native(conditions: list[str], seeds: int, episodes: int, out: Path,
                    'wall_s': round(wall / (len(conditions) * seeds), 1), 'late_warnings': 0,
                    'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
                                  'duration': float(r['duration']), 'ret': float(r['ret']),
+                                 'collisions': int(float(r['collisions'])),
                                  'behaviour': r['behaviour']} for r in mine]}
             (out / 'runs' / f'native-{c}-seed{seed}.json').write_text(json.dumps(run, indent=1))
+
+
+def collisions(runs: list[dict]) -> tuple[float, float]:
+    """Collisions per episode in the first and the last third, over ``runs`` (NaN if the
+    summaries do not have them)."""
+    out = []
+    for part in (0, 2):
+        xs = []
+        for r in runs:
+            eps = sorted(r['episodes'], key=lambda e: e['episode'])
+            k = len(eps) // 3
+            xs += [e.get('collisions', math.nan) for e in
+                   (eps[:k] if part == 0 else eps[len(eps) - k:])]
+        out.append(sum(xs) / len(xs) if xs else math.nan)
+    return out[0], out[1]
 
 
 def complete(path: Path, episodes: int) -> bool:
@@ -225,9 +242,13 @@ def report(out: Path, profile: str) -> str:
             if (cond, profile) in curves and (cond, 'native') in curves:
                 a, b = curves[(cond, profile)][2], curves[(cond, 'native')][2]
                 inside = b[1] <= a[0] <= b[2] and a[1] <= b[0] <= a[2]
+                hits = {p: collisions(by[(cond, p)]) for p in (profile, 'native')}
                 lines.append(f'\n{cond}, last third: standard {cell(a)}, native {cell(b)}: '
                              + ("each within the other's 95% CI" if inside else
-                                "NOT within each other's 95% CIs"))
+                                "NOT within each other's 95% CIs")
+                             + '; collisions per episode, first -> last third: standard '
+                             + ' -> '.join(f'{x:.1f}' for x in hits[profile]) + ', native '
+                             + ' -> '.join(f'{x:.1f}' for x in hits['native']))
     try:
         import matplotlib
         matplotlib.use('Agg')
