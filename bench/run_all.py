@@ -7,7 +7,9 @@ between the ``<!-- BENCH -->`` markers (the prose around them is kept).
     python bench/run_all.py [--only bench_gym,bench_learning]
 
 ``--only`` runs the named benchmarks and keeps the other benchmarks' rows of the table as they
-were (marked with the date they were measured).
+were (marked with the date they were measured). The learning benchmarks (:data:`LEARNING`:
+how CLIS learns and localizes through the standard path, an hour and more of runs) are not
+speed measurements: they are run by hand and recorded in docs/robots.md.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ import tempfile
 HERE = Path(__file__).resolve().parent
 DOC = HERE.parent / 'docs' / 'benchmarks.md'
 START, END = '<!-- BENCH -->', '<!-- /BENCH -->'
+#: The benchmarks of learning, not of speed (module docstring): never run by ``make bench``.
+LEARNING = frozenset({'bench_robots', 'bench_localization'})
 #: 'The rows of A, B are from DATE UTC (a remark).' in the table's first line
 _KEPT = re.compile(r'The rows of (.+?) are from (.+? UTC(?: \([^)]*\))?)\.')
 
@@ -99,7 +103,7 @@ def main() -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--only', help='comma-separated benchmark names (default: all)')
     args = ap.parse_args()
-    scripts = sorted(HERE.glob('bench_*.py'))
+    scripts = sorted(s for s in HERE.glob('bench_*.py') if s.stem not in LEARNING)
     if args.only:
         names = set(args.only.split(','))
         unknown = names - {s.stem for s in scripts}
