@@ -14,13 +14,15 @@ its own, ``--jobs`` runs at a time. The robot: ``--profile husky``, the Husky wo
 RTF``, always in lockstep). ``--native`` (profile cr): the same conditions and seeds through
 the native path too, headless (``clis experiment``, which ``clis run --robot sim`` equals row
 for row), saved as ``OUT/runs/native-C-seedS.json``, and the table compares the two.
-Every run's episodes go to ``OUT/runs/P-C-seedS.json`` (reached, duration, return, who
-acted; the small summaries the figure is drawn from), then ``OUT/P.png`` (the success rate
-per third of the runs, per condition: the mean over seeds with its 95% t-interval, cut to
-[0, 100]) and the
-table (stdout; docs/robots.md) are drawn from them. A run whose summary is saved is not run
-again (an interrupted benchmark goes on); ``--redraw`` draws the table and the figure again
-from the saved runs without running anything.
+Every run's episodes go to ``OUT/runs/P-C-seedS.json`` (reached, duration, return,
+collisions, who acted; the small summaries the figure is drawn from), then ``OUT/P.png`` (the
+success rate per third of the runs, per condition: the mean over seeds with its 95%
+t-interval, cut to [0, 100]) and the table (stdout; docs/robots.md) are drawn from them. A run
+whose summary is saved with all its episodes is not run again, and a run stopped on the way
+goes on from its checkpoint in ``--work`` (``clis run --resume``): an interrupted benchmark
+goes on. ``--only`` runs some of the runs, ``--adopt`` saves a finished run's folder;
+``--redraw`` draws the table and the figure again from the saved runs without running
+anything.
 
 The Husky world does not wait for the graph unless ``--lockstep`` (the world's ``lockstep``
 parameter and ``clis run --lockstep``: it holds its clock at each camera frame, 20 Hz, until
@@ -37,6 +39,7 @@ import json
 import math
 import os
 from pathlib import Path
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -49,17 +52,32 @@ T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8
 
 
 def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, domain: int,
-            out: Path, episode_keys: dict, lockstep: bool = False) -> dict:
+            out: Path, episode_keys: dict, lockstep: bool = False,
+            work: Path = ROOT / 'results' / 'bench_robots') -> dict:
     """One run (module docstring): its episodes and costs. ``episode_keys``: the profile's
-    ``episode`` keys this benchmark sets (a copy of the profile is run)."""
+    ``episode`` keys this benchmark sets (a copy of the profile is run). The run's folder is
+    ``work/P-C-seedS/run``: a run stopped before its last episode goes on from its checkpoint
+    (``clis run --resume``) the next time."""
+    from clis_base.params import config_dir
+    import yaml
     env = {**os.environ, 'ROS_DOMAIN_ID': str(domain)}
-    with tempfile.TemporaryDirectory() as tmp:
-        from clis_base.params import config_dir
-        import yaml
-        data = yaml.safe_load((config_dir() / 'robots' / f'{profile}.yaml').read_text())
-        data['episode'].update(episode_keys)
-        profile_file = Path(tmp) / f'{profile}.yaml'
-        profile_file.write_text(yaml.safe_dump(data))
+    home = work / f'{profile}-{condition}-seed{seed}'
+    run_dir = home / 'run'
+    home.mkdir(parents=True, exist_ok=True)
+    data = yaml.safe_load((config_dir() / 'robots' / f'{profile}.yaml').read_text())
+    data['episode'].update(episode_keys)
+    profile_file = home / f'{profile}.yaml'
+    profile_file.write_text(yaml.safe_dump(data))
+    walls = home / 'wall_s'
+    spent = float(walls.read_text()) if walls.is_file() else 0.0
+    done = 0
+    if (run_dir / 'checkpoint.npz').is_file() and (run_dir / 'episodes.csv').is_file():
+        with open(run_dir / 'episodes.csv', newline='') as fh:
+            done = sum(1 for _ in csv.DictReader(fh))
+    go_on = ['--resume', str(run_dir / 'checkpoint.npz')] if done else []
+    if not done and run_dir.exists():
+        shutil.rmtree(run_dir)                  # a run that learned nothing: afresh
+    if done < episodes:
         held = ['-p', 'lockstep:=true', *(x for k in ('odom', 'scan', 'image')
                                           for x in ('-p', f'{k}_rate:=20.0'))] if lockstep else []
         world = (subprocess.Popen(
@@ -73,22 +91,23 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
             proc = subprocess.run(
                 [sys.executable, '-m', 'clis_app.cli', '--domain-id', str(domain), 'run',
                  '--robot', 'ros', '--profile', str(profile_file), '--condition', condition,
-                 '--seed',
-                 str(seed), '--episodes', str(episodes), '--out', str(Path(tmp) / 'run'),
-                 '--quiet', *speed], env=env, capture_output=True, text=True)
+                 '--seed', str(seed), '--episodes', str(episodes - done), '--out',
+                 str(run_dir), '--quiet', *speed, *go_on], env=env, capture_output=True,
+                text=True)
         finally:
+            spent += time.monotonic() - t0
+            walls.write_text(f'{spent:.1f}')
             if world is not None:
                 world.send_signal(2)
                 try:
                     world.wait(10)
                 except subprocess.TimeoutExpired:
                     world.kill()
-        wall = time.monotonic() - t0
         if proc.returncode != 0:
             raise RuntimeError(f'{condition} seed {seed}: clis run exited '
                                f'{proc.returncode}\n{proc.stderr[-2000:]}')
-        return save_run(Path(tmp) / 'run', out, profile, rtf, lockstep or profile == 'cr',
-                        episode_keys, wall, episodes)
+    return save_run(run_dir, out, profile, rtf, lockstep or profile == 'cr', episode_keys,
+                    spent, episodes)
 
 
 def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
@@ -292,6 +311,8 @@ def main() -> int:
                    help='husky: the world waits for the graph (module docstring)')
     p.add_argument('--native', action='store_true',
                    help='cr: the native path on the same conditions and seeds too')
+    p.add_argument('--work', type=Path, default=ROOT / 'results' / 'bench_robots',
+                   help="the runs' folders (a stopped run goes on from there)")
     p.add_argument('--only', default='', metavar='C:S,...',
                    help='only these runs (condition:seed), e.g. view:2,async:0')
     p.add_argument('--adopt', type=Path, action='append', default=[], metavar='RUN_DIR',
@@ -323,7 +344,7 @@ def main() -> int:
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:
             futures = [pool.submit(run_one, args.profile, c, s, args.episodes, args.rtf,
-                                   base + k, args.out, keys, args.lockstep)
+                                   base + k, args.out, keys, args.lockstep, args.work)
                        for k, (c, s) in enumerate(todo)]
             for f in futures:
                 r = f.result()

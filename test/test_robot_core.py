@@ -326,3 +326,23 @@ def test_lockstep_reads_a_frame_once_its_inputs_are_in_and_waits_at_decision_ins
     assert not lock.waits(t0 + 0.025, t0, True), 'off the tick grid: no module decides'
     every = Lockstep([0.0], 0.05)
     assert all(every.waits(t0 + 0.05 * k, t0, True) for k in range(10))
+
+
+def test_a_run_that_goes_on_numbers_its_episodes_from_the_first_episode():
+    """``first_episode`` (clis run --resume): the robot's first start after it is that
+    episode, the next ones follow."""
+    p = load_profile('cr')
+    rules = episode_rules(p, 0.05, 1.0, -0.1)
+    reader = RobotReader(p, rules.rule)
+    episodes = RobotEpisodes(rules.episode, load_sim_params().wander, rules.contact,
+                             rules.goal_radius, reader.sectors.angles, EpisodeGate(),
+                             np.random.default_rng(0), 'here', goal_width=rules.goal_width,
+                             first_episode=41)
+    scan = Scan(0.0, -math.pi / 2, math.pi / 6, 0.0, 0.5, np.full(7, 0.5))
+    starts = []
+    t = 0.0
+    while len(starts) < 2:
+        step = episodes.step(reader.reading(t, scan, 0.0, 0.0, *blobs()), t)
+        starts += [int(ev.values['episode']) for ev in step.events if ev.name == 'start']
+        t = round(t + 0.05, 9)
+    assert starts == [41, 42]

@@ -64,3 +64,17 @@ def test_the_plan_puts_a_waiting_robot_in_lockstep_with_the_condition_periods(tm
         husky = {c.name: c for c in plan_graph('view', 0, tmp_path, 0.0, robot='ros',
                                                 profile='husky', lockstep=lockstep).children}
         assert 'sim' not in husky and husky['robot'].params['node.lockstep'] is lockstep
+
+
+def test_a_run_that_goes_on_numbers_the_robots_episodes_from_the_checkpoints(tmp_path):
+    """``clis run --robot ros --resume`` (and ``--robot bridge``): the adapter (the bridge)
+    numbers its first episode after the checkpoint's."""
+    from clis_app.graph.plan import plan_graph
+    for robot, name, extra in (('ros', 'robot', {'profile': 'husky'}),
+                               ('bridge', 'bridge', {'device': 'udp://127.0.0.1:9'})):
+        fresh = {c.name: c for c in plan_graph('view', 0, tmp_path, 1.0, robot=robot,
+                                                **extra).children}
+        on = {c.name: c for c in plan_graph('view', 0, tmp_path, 1.0, robot=robot,
+                                             first_episode=41, **extra).children}
+        assert 'node.first_episode' not in fresh[name].params
+        assert on[name].params['node.first_episode'] == 41

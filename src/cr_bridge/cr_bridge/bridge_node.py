@@ -109,7 +109,7 @@ class BridgeNode(Node):
         self.episodes = RobotEpisodes(self.params.episode, self.params.wander, contact,
                                       self.arena.destination.goal_radius, self.ir_angles,
                                       self.gate, np.random.default_rng([self.cfg.seed, 1]),
-                                      self.cfg.start)
+                                      self.cfg.start, first_episode=self.cfg.first_episode)
         self.backoff = Backoff(self.cfg.backoff_initial, self.cfg.backoff_max)
         self.clock = DeviceClock(self.params.episode.dt)
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]

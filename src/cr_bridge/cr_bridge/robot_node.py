@@ -140,7 +140,8 @@ class RobotNode(Node):
         self.episodes = RobotEpisodes(rules.episode, wander, rules.contact, rules.goal_radius,
                                       self.ir_angles, self.gate,
                                       np.random.default_rng([self.cfg.seed, 1]), self.cfg.start,
-                                      goal_width=rules.goal_width)
+                                      goal_width=rules.goal_width,
+                                      first_episode=self.cfg.first_episode)
         self.blob_names = ['destination'] + [lm.name for lm in self.arena.landmarks]
         self.fresh = Freshness(INPUTS, profile.episode.stale_timeout)
         self.lock = (Lockstep(self.cfg.decision_periods, self.cfg.period) if self.cfg.lockstep

@@ -142,10 +142,11 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
             **graph, **priority('graph.realtime_priority', name)},
             remaps={'__node': name}))
     if robot == 'bridge':
-        _plan_bridge(plan, seed, speed, arena, device)
+        _plan_bridge(plan, seed, speed, arena, device, first_episode)
         return plan
     if robot == 'ros':
-        _plan_ros(plan, seed, profile, speed, arena, [tau for _, tau in periods], lockstep)
+        _plan_ros(plan, seed, profile, speed, arena, [tau for _, tau in periods], lockstep,
+                  first_episode)
         return plan
     # the first episode waits until DDS has matched the graph's subscribers of the robot
     # interface (a message sent before is lost to them: the learner's first rewards, a
@@ -173,7 +174,8 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
     return plan
 
 
-def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: str) -> None:
+def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: str,
+                 first_episode: int = 1) -> None:
     """The real robot's bridge as the robot interface (cr_bridge), and with ``device ==
     'emulator'`` the device emulator on a free loopback UDP port, started just before it.
     The robot's clock does not wait (no lockstep): the graph runs at the device's speed."""
@@ -188,7 +190,9 @@ def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: s
                                          '--arena', arena]))
     plan.children.append(Child('bridge', 'cr_bridge', 'bridge', {
         'node.device': device, 'node.seed': seed, 'node.arena_file': arena,
-        'node.start': 'wander', 'node.wait_for_learner': True}, restart='never'))
+        'node.start': 'wander', 'node.wait_for_learner': True,
+        **({'node.first_episode': first_episode} if first_episode > 1 else {})},
+        restart='never'))
 
 
 #: The namespace of the CLIS graph on a robot of the ROS graph.
@@ -196,19 +200,22 @@ ROS_NAMESPACE = '/clis'
 
 
 def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
-              arena: str = '', periods: Sequence[float] = (), lockstep: bool = False) -> None:
+              arena: str = '', periods: Sequence[float] = (), lockstep: bool = False,
+              first_episode: int = 1) -> None:
     """A robot already on the ROS graph (its ``odom``, ``scan``, ``image_raw`` and
     ``camera_info`` at the root or under its profile's namespace; ``cmd_vel`` taken): the CLIS
     graph in :data:`ROS_NAMESPACE`, with the blob detector (the robot's image to the ``camera``
     bearings) and the robot adapter (cr_bridge ``robot``: the robot interface from the robot's
     own sensors, episodes and safety) as the robot interface. The adapter and the CLIS nodes
-    follow the robot's ``/clock`` (the detector stamps with its frames). The robot does not wait for the graph unless ``lockstep`` (a robot that holds
-    its clock at each camera frame until the ``cmd_vel`` answering it: the adapter's
-    ``node.lockstep``, at the condition's decision ``periods``). A profile whose robot is our
-    simulator (its ``simulator: cr_sim``): the simulator too, at the root, as a plain world
-    (``node.episodes`` false: the adapter makes the episodes) that publishes its camera image
-    (``node.standard_topics``), at ``speed``, always in lockstep (as under ``--robot sim``),
-    its first tick once the detector and the adapter have matched its topics."""
+    follow the robot's ``/clock`` (the detector stamps with its frames). The robot does not
+    wait for the graph unless ``lockstep`` (a robot that holds its clock at each camera frame
+    until the ``cmd_vel`` answering it: the adapter's ``node.lockstep``, at the condition's
+    decision ``periods``). A profile whose robot is our simulator (its ``simulator:
+    cr_sim``): the simulator too, at the root, as a plain world (``node.episodes`` false: the
+    adapter makes the episodes) that publishes its camera image (``node.standard_topics``), at
+    ``speed``, always in lockstep (as under ``--robot sim``), its first tick once the detector
+    and the adapter have matched its topics. ``first_episode`` > 1: the adapter numbers its
+    episodes from there (a run that goes on from a checkpoint)."""
     from cr_sim.core.profile import load_profile
     plan.namespace = ROS_NAMESPACE
     for child in plan.children:
@@ -234,6 +241,7 @@ def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
         'node.profile': profile, 'node.seed': seed, 'node.wait_for_learner': True,
         'node.lockstep': bool(lockstep),
         'node.decision_periods': [float(p) for p in periods] or [0.0],
+        **({'node.first_episode': first_episode} if first_episode > 1 else {}),
         'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE}, restart='never'))
 
 

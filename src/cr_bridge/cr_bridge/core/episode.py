@@ -59,6 +59,8 @@ class RobotSideParams:
     gate, frames."""
 
     start: str = param(choices=START_MODES, doc='where episodes start')
+    first_episode: int = param(1, 2**31 - 1, doc='number of the first episode; > 1 goes on with '
+                               'a run (clis run --resume: the episode after the checkpoint)')
     seed: int = param(0, 2**31 - 1, doc='seed of the wander steering noise')
     wait_for_learner: bool = param(doc='wander until learner/progress reports the last '
                                    'episode learned')
@@ -150,11 +152,14 @@ class RobotEpisodes:
         Above 0: the destination is reached when its blob looks at least this wide [rad]
         (:attr:`Reading.dest_width`), whatever its range; 0: when its range is within
         ``goal_radius``.
+    first_episode : int
+        The number of the first episode (> 1: a run that goes on from a checkpoint).
     """
 
     def __init__(self, episode: EpisodeParams, wander: WanderParams, contact: ContactParams,
                  goal_radius: float, ir_angles, gate: EpisodeGate, rng: np.random.Generator,
-                 start: str = 'wander', *, goal_width: float = 0.0) -> None:
+                 start: str = 'wander', *, goal_width: float = 0.0,
+                 first_episode: int = 1) -> None:
         if start not in START_MODES:
             raise ValueError(f'start {start!r}: one of {", ".join(START_MODES)}')
         if not goal_width >= 0.0:
@@ -164,7 +169,8 @@ class RobotEpisodes:
         self.goal_radius = goal_radius
         self.goal_width = goal_width
         self.gate = gate
-        self.book = EpisodeBook(gate)    # numbering, events, return, learner gate
+        # numbering, events, return, learner gate
+        self.book = EpisodeBook(gate, first_episode)
         self.policy = WanderPolicy(wander, ir_angles, rng)
         self.start_mode = start
         self.in_contact = False
