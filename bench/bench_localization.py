@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from pathlib import Path
 import subprocess
 import sys
@@ -39,7 +38,8 @@ BINS = (0.0, 2.0, 5.0, 10.0, 20.0, 45.0, math.inf)
 
 def record(args: argparse.Namespace, domain: int) -> list[dict]:
     """Run the world, ``clis run`` and the probe; the belief samples with their truth."""
-    os.environ['ROS_DOMAIN_ID'] = str(domain)
+    from clis_app.graph.ros_env import apply_ros_env
+    apply_ros_env(domain_id=domain)         # loopback DDS, its own domain (the children too)
     from clis_base.params import config_dir
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import OccupancyGrid, Odometry
@@ -163,7 +163,8 @@ def main() -> int:
         run = json.loads(saved.read_text())
     else:
         t0 = time.monotonic()
-        samples = record(args, 150 + os.getpid() % 50)
+        from clis_app.graph.ros_env import pick_domain_id
+        samples = record(args, pick_domain_id())   # held by this process: no other run's
         run = {'episodes': args.episodes, 'seed': args.seed, 'time_limit': args.time_limit,
                'radius': args.radius, 'wall_s': round(time.monotonic() - t0, 1),
                'date': time.strftime('%Y-%m-%d'), 'samples': samples}

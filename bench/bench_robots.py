@@ -58,9 +58,10 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
     ``episode`` keys this benchmark sets (a copy of the profile is run). The run's folder is
     ``work/P-C-seedS/run``: a run stopped before its last episode goes on from its checkpoint
     (``clis run --resume``) the next time."""
+    from clis_app.graph.ros_env import apply_ros_env
     from clis_base.params import config_dir
     import yaml
-    env = {**os.environ, 'ROS_DOMAIN_ID': str(domain)}
+    env = apply_ros_env(dict(os.environ), domain_id=domain)    # loopback DDS, its own domain
     home = work / f'{profile}-{condition}-seed{seed}'
     run_dir = home / 'run'
     home.mkdir(parents=True, exist_ok=True)
@@ -340,12 +341,15 @@ def main() -> int:
         todo = [(c, s) for c in args.conditions.split(',') for s in range(args.seeds)
                 if not complete(args.out / 'runs' / f'{args.profile}-{c}-seed{s}.json',
                                 args.episodes) and (not only or (c, str(s)) in only)]
-        base = 120 + (os.getpid() % 50) * 2
+        # each run on a ROS_DOMAIN_ID that no other process of the project holds (claimed
+        # with a lock for as long as this process lives: a concurrent benchmark or run cannot
+        # take it, as one did when ids were drawn from the process id)
+        from clis_app.graph.ros_env import pick_domain_id
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:
             futures = [pool.submit(run_one, args.profile, c, s, args.episodes, args.rtf,
-                                   base + k, args.out, keys, args.lockstep, args.work)
-                       for k, (c, s) in enumerate(todo)]
+                                   pick_domain_id(), args.out, keys, args.lockstep, args.work)
+                       for c, s in todo]
             for f in futures:
                 r = f.result()
                 print(f'{r["condition"]} seed {r["seed"]}: '
