@@ -274,12 +274,14 @@ def report(out: Path, profile: str) -> str:
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
         fig, ax = plt.subplots(figsize=(5.5, 3.4))
+        colour = {c: f'C{i}' for i, c in enumerate(sorted({c for c, _ in curves}))}
         for k, ((cond, path), c) in enumerate(curves.items()):
             err = [[100 * (m - lo) for m, lo, _ in c], [100 * (hi - m) for m, _, hi in c]]
             x = [i + 1 + 0.06 * (k - (len(curves) - 1) / 2) for i in range(3)]
             ax.errorbar(x, [100 * m for m, _, _ in c], yerr=err, marker='o', capsize=4,
-                        ls='--' if path == 'native' else '-',
-                        label=f'{cond}' + (f', {path}' if two else '')
+                        ls='--' if path == 'native' else '-', color=colour[cond],
+                        label=f'{cond}' + ((', native' if path == 'native' else ', standard')
+                                           if two else '')
                         + f' ({len(by[(cond, path)])} seeds)')
         ax.set_xticks([1, 2, 3], ['first third', 'middle', 'last third'])
         ax.set_ylabel('episodes reached [%]')
