@@ -27,6 +27,14 @@ reached by its apparent width (rule ``size``) or by the scan's return in its bea
 ``range``), a collision when a sector reads less than ``episode.collision_range``, the
 profile's time limit, and its wander to the next start through cmd_vel.
 
+Lockstep (``node.lockstep``, for a simulated robot that holds its clock at each camera frame
+until a ``cmd_vel`` stamped with it: our simulator in world mode, the Husky world's
+``lockstep``): the frames are read as their inputs come, not on the timer (each once the
+detector's ``camera`` and the odometry and scan of its instant are in), and each is answered by
+one ``cmd_vel`` stamped with it: at once with the command in force, or, at the decision instants
+``t0 + l tau_i`` of a running episode (``node.decision_periods``), by the arbiter's decision on
+it (:class:`cr_bridge.core.ros_robot.Lockstep`). The timer then only watches the inputs' age.
+
 Safety, in the node's clock (the robot's ``/clock`` with ``-p use_sim_time:=true``): the
 bridge's command guard (:class:`cr_bridge.core.safety.CommandGuard`): a command with NaN/inf is
 rejected (zero), speeds are clipped to the profile's ``v_max`` and ``omega_max`` (and
