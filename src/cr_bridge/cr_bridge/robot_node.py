@@ -154,7 +154,6 @@ class RobotNode(Node):
         self.fresh = Freshness(INPUTS, profile.episode.stale_timeout)
         self.lock = (Lockstep(self.cfg.decision_periods, self.cfg.period) if self.cfg.lockstep
                      else None)
-        self.stamps = dict.fromkeys(INPUTS, -math.inf)     # each input's latest stamp
         self.state = 'waiting'                  # 'running', 'stale'
         self.t = -math.inf                      # the last reading's time
         self.scan = None
@@ -242,7 +241,6 @@ class RobotNode(Node):
         """``name`` read at ``stamp``, the sim time it describes (its arrival time when the
         robot does not stamp it): a reading that waited in a queue is as old as its stamp."""
         now = self.now_s()
-        self.stamps[name] = stamp
         if self.lock is not None:           # the robot waits: the frame's time is its stamp
             self.fresh.seen(name, stamp)
             self._frame()
@@ -251,14 +249,14 @@ class RobotNode(Node):
 
     def _on_odom(self, msg) -> None:
         t, pose, v, w = bconv.odom_from_msg(msg)
-        if self.lock is not None and t < self.stamps['camera'] - 1e-6:
+        if self.lock is not None and t < self._stamp('camera') - 1e-6:
             return                          # lockstep: an older one overtaken (resent)
         self.odom = (pose, v, w)
         self._seen('odom', t)
 
     def _on_scan(self, msg) -> None:
         scan = bconv.scan_from_msg(msg)
-        if self.lock is not None and scan.t < self.stamps['camera'] - 1e-6:
+        if self.lock is not None and scan.t < self._stamp('camera') - 1e-6:
             return
         self.scan = scan
         self._seen('scan', scan.t)
@@ -270,10 +268,15 @@ class RobotNode(Node):
         self.blobs = (bearings, widths)
         self._seen('camera', t)
 
+    def _stamp(self, name: str) -> float:
+        """Lockstep: the latest stamp of input ``name`` (-inf before the first)."""
+        t = self.fresh.last[name]
+        return -math.inf if t is None else t
+
     def _frame(self) -> None:
         """Lockstep: read the frame whose camera, odometry and scan are all in."""
-        st = self.stamps
-        t = self.lock.frame(st['camera'], st['odom'], st['scan'], self.t)
+        t = self.lock.frame(self._stamp('camera'), self._stamp('odom'), self._stamp('scan'),
+                            self.t)
         if t is not None:
             self._reading(t)
 
@@ -382,7 +385,6 @@ class RobotNode(Node):
             self._stale(('clock',), now)
         self.t = -math.inf
         self.fresh.forget()
-        self.stamps = dict.fromkeys(INPUTS, -math.inf)
         self.next_marker_t = 0.0
 
     # ------------------------------------------------------------------ outputs
