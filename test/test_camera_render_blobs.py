@@ -12,8 +12,10 @@ from clis_modules.core.blobs import (
     BlobParams,
     ColourRange,
     bearings,
+    candidates,
     detect,
     hsv,
+    target_masks,
 )
 from cr_sim.core.arena import load_arena
 from cr_sim.core.camera import Panoramic, Pinhole
@@ -306,3 +308,38 @@ def test_the_largest_blob_counts_and_a_small_one_is_not_seen():
         assert math.isnan(got['L1'].bearing) != seen
     none = detect(_strip([]), 'rgb8', cam, BlobParams({'L1': NAMED_RANGES['red']}))['L1']
     assert (none.seen, none.area) == (False, 0) and math.isnan(none.width)
+
+
+@pytest.mark.parametrize('encoding', ['rgb8', 'bgr8', 'rgba8'])
+def test_the_masks_are_hsvs_on_every_pixel_the_prefilter_keeps_no_match_out(encoding):
+    # target_masks computes hsv only on the candidates: its masks must be those of hsv on the
+    # whole image, pixel for pixel, for colours at every range's bounds (where rounding
+    # decides) and for random ones.
+    rng = np.random.default_rng(7)
+    ranges = [*NAMED_RANGES.values(), ColourRange(0.0, 360.0, 0.0, 1.0, 0.0, 1.0),
+              ColourRange(100.0, 140.0, 0.97, 1.0, 0.9, 1.0)]
+    near = []
+    for r in ranges:
+        for v_lo in (r.val_lo, r.val_hi):
+            for s_lo in (r.sat_lo, r.sat_hi):
+                big = np.clip(np.round(v_lo * 255) + np.arange(-2, 3), 0, 255)
+                for m in big:
+                    low = np.clip(np.round(m * (1.0 - s_lo)) + np.arange(-2, 3), 0, m)
+                    near += [(m, lo, mid) for lo in low for mid in (lo, m, (m + lo) // 2)]
+    near = np.array(near, dtype=np.uint8)
+    pixels = np.concatenate([near, near[:, ::-1], near[:, [1, 2, 0]],
+                             rng.integers(0, 256, (20000, 3), dtype=np.uint8)])
+    image = pixels[:len(pixels) // 100 * 100].reshape(100, -1, 3)
+    if encoding == 'rgba8':
+        image = np.concatenate([image, rng.integers(0, 256, image.shape[:2] + (1,),
+                                                    dtype=np.uint8)], axis=2)
+    for targets in ([('all', ranges[-2])], list(zip('abcdefgh', ranges[:8])),
+                    [('sat', ranges[-1])]):
+        params = BlobParams(tuple(targets))
+        h, s, v = hsv(image, encoding)
+        masks = target_masks(image, encoding, params)
+        for (name, r), mask in zip(targets, masks):
+            expected = r.mask(h, s, v)
+            assert np.array_equal(mask, expected), name
+            assert expected.any()
+    assert candidates(image, ranges[:8]).mean() < 1.0         # it does drop pixels

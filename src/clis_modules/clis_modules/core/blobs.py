@@ -43,7 +43,8 @@ from scipy import ndimage
 
 __all__ = [
     'ENCODINGS', 'ColourRange', 'NAMED_RANGES', 'BlobParams', 'Blob', 'check_encoding', 'hsv',
-    'to_rgb', 'detect', 'bearings', 'widths', 'draw_boxes', 'camera_for_frame',
+    'to_rgb', 'candidates', 'target_pixels', 'target_masks', 'detect', 'bearings', 'widths',
+    'draw_boxes', 'camera_for_frame',
 ]
 
 #: Accepted image encodings (sensor_msgs/Image names) and their channel count.
@@ -308,6 +309,81 @@ def _columns_unwrapped(cols: np.ndarray, width: int) -> np.ndarray:
     return np.where(cols < start, cols + width, cols)
 
 
+def candidates(image: np.ndarray, ranges: list[ColourRange] | tuple[ColourRange, ...]
+               ) -> np.ndarray:
+    """The pixels that may match one of ``ranges``: a superset of their matches, from the
+    8-bit channels alone (a cheap test before :func:`hsv`'s floating point).
+
+    A pixel matches a range only if ``V >= val_lo`` and ``S >= sat_lo`` (module docstring),
+    with ``V = M / 255`` and ``S = (M - m) / M`` for its largest and smallest channel ``M``
+    and ``m``; a pixel is dropped only when it fails both by more than one grey level for the
+    lowest ``val_lo`` and ``sat_lo`` of all ranges, far beyond the rounding of :func:`hsv`.
+
+    Parameters
+    ----------
+    image : np.ndarray, shape (H, W, 3) or (H, W, 4), uint8
+        Checked already; the channel order does not matter (alpha is ignored).
+    ranges : sequence of ColourRange
+
+    Returns
+    -------
+    np.ndarray, shape (H, W), bool
+    """
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    big = np.maximum(np.maximum(r, g), b)
+    val_lo = min((r.val_lo for r in ranges), default=0.0)
+    sat_lo = min((r.sat_lo for r in ranges), default=0.0)
+    keep = big.astype(np.float32) + np.float32(1.0) >= np.float32(val_lo * 255.0)
+    if sat_lo > 0.0:
+        chroma = (big - np.minimum(np.minimum(r, g), b)).astype(np.float32)
+        keep &= chroma + np.float32(1.0) >= np.float32(sat_lo) * big
+    return keep
+
+
+def target_pixels(image: np.ndarray, encoding: str, params: BlobParams
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The pixels that match each target's range (:meth:`ColourRange.mask` of :func:`hsv`), in
+    the order of ``params.targets``, with :func:`hsv` computed only on the :func:`candidates`
+    (most pixels of a scene, floor and walls, are grey or dark).
+
+    Parameters
+    ----------
+    image : np.ndarray, shape (H, W, 3) or (H, W, 4), uint8
+        In ``encoding``.
+    encoding : str
+    params : BlobParams
+
+    Returns
+    -------
+    list of (rows, cols)
+        Per target, the row and column indices (int arrays, raster order) of its matches.
+    """
+    a = _checked(image, encoding)
+    keep = candidates(a, [rng for _, rng in params.targets])
+    rows, cols = np.nonzero(keep)
+    h, s, v = hsv(a[rows, cols][np.newaxis], encoding)
+    out = []
+    for _, rng in params.targets:
+        match = rng.mask(h, s, v)[0]
+        out.append((rows[match], cols[match]))
+    return out
+
+
+def target_masks(image: np.ndarray, encoding: str, params: BlobParams) -> list[np.ndarray]:
+    """:func:`target_pixels` as masks: ``ColourRange.mask(*hsv(image))`` of each target.
+
+    Returns
+    -------
+    list of np.ndarray, shape (H, W), bool
+    """
+    out = []
+    for rows, cols in target_pixels(image, encoding, params):
+        mask = np.zeros(np.shape(image)[:2], dtype=bool)
+        mask[rows, cols] = True
+        out.append(mask)
+    return out
+
+
 def detect(image: np.ndarray, encoding: str, camera: CameraModel, params: BlobParams
            ) -> dict[str, Blob]:
     """Find each target's blob (module docstring for the model).
@@ -333,16 +409,22 @@ def detect(image: np.ndarray, encoding: str, camera: CameraModel, params: BlobPa
         An unsupported encoding (one line naming it and the accepted ones), or an image
         whose shape is not the camera's.
     """
-    h, s, v = hsv(image, encoding)
-    if h.shape != (camera.height, camera.width):
-        raise ValueError(f'the image is {h.shape[0]} x {h.shape[1]} (H x W), the camera '
+    a = _checked(image, encoding)
+    if a.shape[:2] != (camera.height, camera.width):
+        raise ValueError(f'the image is {a.shape[0]} x {a.shape[1]} (H x W), the camera '
                          f'{camera.height} x {camera.width}')
     out = {}
-    for name, rng in params.targets:
-        labels, n = ndimage.label(rng.mask(h, s, v), structure=_EIGHT)
-        if n == 0:
+    for (name, _), (rows, cols) in zip(params.targets, target_pixels(a, encoding, params)):
+        if len(rows) == 0:
             out[name] = Blob(False, math.nan, 0, math.nan, math.nan)
             continue
+        # labelled within the box of the matches (all the columns on a strip, for its
+        # seam): the components and their raster-order labels are the whole image's
+        r0, c0 = int(rows.min()), 0 if camera.wraps else int(cols.min())
+        c1 = camera.width - 1 if camera.wraps else int(cols.max())
+        mask = np.zeros((int(rows.max()) - r0 + 1, c1 - c0 + 1), dtype=bool)
+        mask[rows - r0, cols - c0] = True
+        labels, n = ndimage.label(mask, structure=_EIGHT)
         if camera.wraps and camera.width > 1:
             labels = _merge_seam(labels, n)
         area = np.bincount(labels.ravel(), minlength=n + 1)
@@ -352,7 +434,7 @@ def detect(image: np.ndarray, encoding: str, camera: CameraModel, params: BlobPa
             out[name] = Blob(False, math.nan, int(area[best]), math.nan, math.nan)
             continue
         rows, cols = np.nonzero(labels == best)
-        cols = cols.astype(np.float64)
+        rows, cols = rows + r0, (cols + c0).astype(np.float64)
         if camera.wraps:
             cols = _columns_unwrapped(cols, camera.width)
             u = float(np.mean(cols))
