@@ -53,11 +53,12 @@ T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8
 
 def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, domain: int,
             out: Path, episode_keys: dict, lockstep: bool = False,
-            work: Path = ROOT / 'results' / 'bench_robots') -> dict:
+            work: Path = ROOT / 'results' / 'bench_robots', camera: str = '') -> dict:
     """One run (module docstring): its episodes and costs. ``episode_keys``: the profile's
     ``episode`` keys this benchmark sets (a copy of the profile is run). The run's folder is
     ``work/P-C-seedS/run``: a run stopped before its last episode goes on from its checkpoint
-    (``clis run --resume``) the next time."""
+    (``clis run --resume``) the next time. ``camera``: the Husky world's image size
+    ``'WxH'`` ('' = the world's default)."""
     from clis_app.graph.ros_env import apply_ros_env
     from clis_base.params import config_dir
     import yaml
@@ -79,8 +80,11 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
     if not done and run_dir.exists():
         shutil.rmtree(run_dir)                  # a run that learned nothing: afresh
     if done < episodes:
-        held = ['-p', 'lockstep:=true', *(x for k in ('odom', 'scan', 'image')
+        held = ['-p', 'lockstep:=true', *(x for k in ('clock', 'odom', 'scan', 'image')
                                           for x in ('-p', f'{k}_rate:=20.0'))] if lockstep else []
+        if camera:
+            w, h = camera.split('x')
+            held += ['-p', f'width:={int(w)}', '-p', f'height:={int(h)}']
         world = (subprocess.Popen(
             [sys.executable, '-m', 'husky_world.world_node', '--ros-args', '-p',
              f'real_time_factor:={rtf!r}', *held], env=env, stdout=subprocess.DEVNULL,
@@ -108,14 +112,15 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
             raise RuntimeError(f'{condition} seed {seed}: clis run exited '
                                f'{proc.returncode}\n{proc.stderr[-2000:]}')
     return save_run(run_dir, out, profile, rtf, lockstep or profile == 'cr', episode_keys,
-                    spent, episodes)
+                    spent, episodes, camera if profile == 'husky' else '')
 
 
 def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
-             episode_keys: dict, wall: float, planned: int) -> dict:
+             episode_keys: dict, wall: float, planned: int, camera: str = '') -> dict:
     """The summary of the ``clis run`` in ``run_dir`` (its condition and seed are its
     episodes'; ``planned``: the episodes it was started for, more than it has if it was
-    stopped), saved as ``OUT/runs/P-C-seedS.json``."""
+    stopped; ``camera``: the world's image size, if set), saved as
+    ``OUT/runs/P-C-seedS.json``."""
     with open(run_dir / 'episodes.csv', newline='') as fh:
         rows = list(csv.DictReader(fh))
     log = run_dir / 'logs' / 'learner.log'
@@ -124,7 +129,7 @@ def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
     condition, seed = rows[0]['condition'], int(rows[0]['seed'])
     run = {'profile': profile, 'condition': condition, 'seed': seed, 'rtf': rtf,
            'lockstep': lockstep, 'episode_keys': episode_keys, 'wall_s': round(wall, 1),
-           'planned': planned,
+           'planned': planned, **({'camera': camera} if camera else {}),
            'late_warnings': late,
            'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
                          'duration': float(r['duration']), 'ret': float(r['ret']),
@@ -203,6 +208,11 @@ def thirds(run: dict) -> list[float]:
             for part in (eps[:k], eps[k:len(eps) - k], eps[len(eps) - k:])]
 
 
+def pct(rate: float) -> str:
+    """A rate in percent, rounded; 'n/a' for NaN (a third without episodes)."""
+    return 'n/a' if math.isnan(rate) else str(round(100 * rate))
+
+
 def mean_ci(values: list[float]) -> tuple[float, float, float]:
     """Mean and its 95% t-interval ``(lo, hi)``, cut to the rates' [0, 1] (the mean itself for
     one value)."""
@@ -243,7 +253,7 @@ def report(out: Path, profile: str) -> str:
         t = [thirds(r) for r in rs]
         first, last = mean_ci([x[0] for x in t]), mean_ci([x[2] for x in t])
         curves[(cond, path)] = [mean_ci([x[i] for x in t]) for i in range(3)]
-        per_seed = ', '.join(f'{round(100 * x[0])}->{round(100 * x[2])}' for x in t)
+        per_seed = ', '.join(f'{pct(x[0])}->{pct(x[2])}' for x in t)
         name = {'native': 'native (headless)', profile: 'standard (clis run --robot ros)'}
         lines.append(
             f'| {cond} | ' + (f'{name[path]} | ' if two else '') + f'{len(rs)} | '
@@ -312,6 +322,9 @@ def main() -> int:
     p.add_argument('--out', type=Path, default=ROOT / 'docs' / 'figures' / 'robots')
     p.add_argument('--lockstep', action='store_true',
                    help='husky: the world waits for the graph (module docstring)')
+    p.add_argument('--camera', default='', metavar='WxH',
+                   help="husky: the world's image size, e.g. 160x120 (its camera_info gives "
+                        "the detector the intrinsics); default: the world's")
     p.add_argument('--native', action='store_true',
                    help='cr: the native path on the same conditions and seeds too')
     p.add_argument('--work', type=Path, default=ROOT / 'results' / 'bench_robots',
@@ -350,7 +363,8 @@ def main() -> int:
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:
             futures = [pool.submit(run_one, args.profile, c, s, args.episodes, args.rtf,
-                                   pick_domain_id(), args.out, keys, args.lockstep, args.work)
+                                   pick_domain_id(), args.out, keys, args.lockstep, args.work,
+                                   args.camera if args.profile == 'husky' else '')
                        for c, s in todo]
             for f in futures:
                 r = f.result()
