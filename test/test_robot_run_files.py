@@ -11,6 +11,7 @@ from clis_base.params import load_yaml
 from clis_learner.core.config import load_clis_params
 from cr_sim.core.arena import arena_data, load_arena, parse_arena, scaled_arena
 from cr_sim.core.profile import load_profile
+import numpy as np
 import pytest
 
 
@@ -78,3 +79,71 @@ def test_a_run_that_goes_on_numbers_the_robots_episodes_from_the_checkpoints(tmp
                                              first_episode=41, **extra).children}
         assert 'node.first_episode' not in fresh[name].params
         assert on[name].params['node.first_episode'] == 41
+
+
+def test_the_models_lengths_follow_the_robot_and_the_runs_preset():
+    """On the Husky (10 m for the layout's 3 m: s = 10/3) the modules' speed limits, their
+    exploration and the densities of (7) are the Cyber Rodent's at the robot's size: lengths
+    and speeds times s, (7)'s epsilon over s^2, the speed cap the robot's own; the preset's
+    values are the ones scaled; the Cyber Rodent's own profile changes nothing."""
+    from clis_app.graph.robot_ros import flat_keys, robot_params
+    from clis_learner.core.config import preset_overrides
+    s = 10.0 / 3.0
+    for overrides in (None, preset_overrides('improved') | {'view.policy.sigma': 0.2}):
+        base = load_clis_params(overrides=overrides)
+        keys = robot_params('husky', overrides)
+        robot = load_clis_params(overrides={**(overrides or {}), **flat_keys(keys)})
+        inst = {n: p for n, _, p in base.instances}
+        big = {n: p for n, _, p in robot.instances}
+        assert robot.common.d_react == pytest.approx(base.common.d_react * s)
+        assert robot.common.epsilon == pytest.approx(base.common.epsilon / s ** 2)
+        assert robot.common.v_wheel_max == load_profile('husky').body.v_max
+        for name in ('view', 'place', 'wall'):
+            for key in ('sigma', 'sigma_min', 'sigma_max'):
+                assert getattr(big[name].policy, key) == \
+                    pytest.approx(getattr(inst[name].policy, key) * s)
+        assert big['innate'].sigma == pytest.approx(inst['innate'].sigma * s)
+        assert big['innate'].sigma_blind == pytest.approx(inst['innate'].sigma_blind * s)
+        assert big['place'].features.phi_xy == pytest.approx(inst['place'].features.phi_xy
+                                                              * s * s)
+        assert big['view'].policy.sigma == pytest.approx((0.2 if overrides else 0.1) * s)
+        # (7)'s ratio of two wheel densities (2-d Gaussians, std sigma) is the same at scale
+        rng = np.random.default_rng(0)
+        a, mu, mu2 = rng.normal(0.0, 0.2, (3, 2))
+        sig = inst['view'].policy.sigma
+
+        def pdf(scale: float, m: np.ndarray, a=a, sig=sig) -> float:
+            d = scale * (a - m) / (scale * sig)
+            return float(np.exp(-0.5 * d @ d) / (2 * np.pi * (scale * sig) ** 2))
+        ratio = [(pdf(k, mu) + eps) / (pdf(k, mu2) + eps)
+                 for k, eps in ((s, robot.common.epsilon), (1.0, base.common.epsilon))]
+        assert ratio[0] == pytest.approx(ratio[1])
+    assert robot_params('cr') == {}
+
+
+def test_a_husky_run_goes_on_from_its_checkpoint(tmp_path):
+    """``clis run --robot ros --profile husky --resume``: a checkpoint of the robot's own
+    parameters (what its learner saved) is taken, one of the layout's size is refused."""
+    from clis_app.cli import build_parser
+    from clis_app.graph.robot_ros import flat_keys, robot_arena, robot_params
+    from clis_app.graph.run import _check_args
+    from clis_learner.core.checkpoint import save_checkpoint
+    from clis_learner.core.config import DEFAULT_PRESET, params_hash, preset_overrides
+    from clis_modules.core.modules import arena_map, make_modules
+    preset = preset_overrides(DEFAULT_PRESET)
+    own = load_clis_params(overrides={**preset, **flat_keys(robot_params('husky', preset))})
+    plain = load_clis_params(overrides=preset)
+    for name, clis in (('own', own), ('plain', plain)):
+        modules = make_modules(clis, 'view', *arena_map(robot_arena('husky')))
+        save_checkpoint(tmp_path / f'{name}.npz', modules, params_hash(clis),
+                        {'condition': 'view', 'seed': 0, 'episode': 7, 'version': 7})
+    errors = {}
+    for name in ('own', 'plain'):
+        args = build_parser().parse_args(
+            ['run', '--robot', 'ros', '--profile', 'husky', '--condition', 'view', '--resume',
+             str(tmp_path / f'{name}.npz')])
+        errors[name] = _check_args(args)
+        if name == 'own':
+            assert args.first_episode == 8
+    assert errors['own'] is None
+    assert 'cannot start from it' in errors['plain']

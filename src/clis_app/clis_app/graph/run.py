@@ -276,7 +276,12 @@ def _check_args(args: argparse.Namespace) -> str | None:
     from clis_learner.core.checkpoint import CheckpointError, load_checkpoint
     from clis_learner.core.config import params_hash
     from clis_modules.core.modules import arena_map, make_modules
-    clis = load_clis_params(overrides=args.clis_overrides or None)
+    overrides = dict(args.clis_overrides)
+    if args.robot == 'ros':                 # the learner's keys and arena are the robot's
+        from clis_app.graph.robot_ros import flat_keys, robot_arena, robot_params
+        overrides.update(flat_keys(robot_params(args.profile, args.clis_overrides)))
+        arena = robot_arena(args.profile)
+    clis = load_clis_params(overrides=overrides or None)
     try:
         meta = load_checkpoint(args.resume, make_modules(clis, args.condition,
                                                          *arena_map(arena)),
@@ -404,7 +409,8 @@ def main(args: argparse.Namespace) -> int:
     use_graph_profile()
     if args.robot == 'ros':              # the layout and the features at the robot's size
         from clis_app.graph.robot_ros import robot_files
-        args.arena, robot_params = robot_files(args.profile, out, write=False)
+        args.arena, robot_params = robot_files(args.profile, out, write=False,
+                                               overrides=args.clis_overrides)
     try:
         plan = plan_graph(args.condition, args.seed, out, args.speed,
                           str(args.resume.resolve()) if args.resume else '', args.arena,
@@ -426,7 +432,7 @@ def main(args: argparse.Namespace) -> int:
             return EXIT_CONFIG
     out.mkdir(parents=True, exist_ok=True)              # every input checked: now write
     if args.robot == 'ros' and robot_params is not None:
-        robot_files(args.profile, out)
+        robot_files(args.profile, out, overrides=args.clis_overrides)
         args.params = [*args.params, robot_params]
     tty = sys.stderr.isatty() and not args.quiet
 
