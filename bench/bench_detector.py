@@ -28,20 +28,17 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Iterator
-import datetime
 import json
 import math
 import os
 from pathlib import Path
-import platform
 import sys
 import time
 
 from clis_modules.core.blobs import (
     Blob,
-    _columns_unwrapped,
-    _merge_seam,
     bearings,
+    blob_of,
     hsv,
     target_masks,
     widths,
@@ -53,20 +50,17 @@ from cr_sim.core.camera import CameraModel
 from cr_sim.core.profile import load_profile
 from cr_sim.core.render import Scene, render
 import numpy as np
-import scipy
-from scipy import ndimage
 
-EIGHT = np.ones((3, 3), dtype=bool)         # 8-connectivity, as blobs.detect labels
 CLEARANCE = 0.1                             # [m] a random pose's disc that must be free
 ENCODING = 'rgb8'
 
 
 def whole_image_reference(image: np.ndarray, camera: CameraModel, detector: Detector
                           ) -> tuple[list[np.ndarray], dict[str, Blob], np.ndarray, np.ndarray]:
-    """The whole-image reference: what ``Detector.frame`` computed before the prefilter and
-    the boxes. ``hsv`` of every pixel, each target's ``ColourRange.mask`` of the whole image,
-    ``ndimage.label`` of each whole mask (the seam merged on a strip), the largest component
-    as the blob (:func:`clis_modules.core.blobs.detect`'s model).
+    """The whole-image reference: ``hsv`` of every pixel, each target's ``ColourRange.mask``
+    of the whole image, its blob from the whole mask (:func:`~clis_modules.core.blobs.blob_of`:
+    ``ndimage.label`` of the whole image, the seam merged on a strip, the largest component),
+    without the prefilter and the boxes of :func:`~clis_modules.core.blobs.detect`.
 
     Returns
     -------
@@ -80,33 +74,7 @@ def whole_image_reference(image: np.ndarray, camera: CameraModel, detector: Dete
     for name, rng in params.targets:
         mask = rng.mask(h, s, v)
         masks.append(mask)
-        if not mask.any():
-            blobs[name] = Blob(False, math.nan, 0, math.nan, math.nan)
-            continue
-        labels, n = ndimage.label(mask, structure=EIGHT)
-        if camera.wraps and camera.width > 1:
-            labels = _merge_seam(labels, n)
-        area = np.bincount(labels.ravel(), minlength=n + 1)
-        area[0] = 0
-        best = int(np.argmax(area))
-        if area[best] < params.min_area:
-            blobs[name] = Blob(False, math.nan, int(area[best]), math.nan, math.nan)
-            continue
-        rows, cols = np.nonzero(labels == best)
-        cols = cols.astype(np.float64)
-        if camera.wraps:
-            cols = _columns_unwrapped(cols, camera.width)
-            u = float(np.mean(cols))
-            width = (cols.max() - cols.min() + 1.0) * camera.angle_per_pixel
-            u = (u + 0.5) % camera.width - 0.5
-        else:
-            u = float(np.mean(cols))
-            edges = camera.bearing_of_column(np.array((cols.min() - 0.5, cols.max() + 0.5)))
-            width = abs(float(edges[0] - edges[1]))
-        box = (int(rows.min()), int(rows.max()), int(cols.min()) % camera.width,
-               int(cols.max()) % camera.width)
-        blobs[name] = Blob(True, float(camera.bearing_of_column(u)), int(area[best]),
-                           float(width), u, box)
+        blobs[name] = blob_of(mask, camera, params.min_area)
     return masks, blobs, bearings(blobs, detector.names), widths(blobs, detector.names)
 
 
@@ -196,25 +164,9 @@ def measure(detector: Detector, images: list[np.ndarray], frames: int) -> dict:
 
 
 def machine_info() -> dict:
-    """Platform, CPU, Python, numpy and scipy versions, load average, date."""
-    cpu = ''
-    try:
-        for line in Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                cpu = line.split(':', 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {
-        'platform': platform.platform(),
-        'cpu': cpu or platform.processor() or 'unknown',
-        'cpu_count': os.cpu_count(),
-        'python': sys.version.split()[0],
-        'numpy': np.__version__,
-        'scipy': scipy.__version__,
-        'load_average': [round(x, 2) for x in os.getloadavg()],
-        'date': datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds'),
-    }
+    """The machine as ``run_all`` reports it, and the load average now."""
+    from run_all import machine  # bench/, the script's folder, is on sys.path
+    return {**machine(), 'load_average': [round(x, 2) for x in os.getloadavg()]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -235,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     info = machine_info()
     info['load_average_at_start'] = round(load0, 2)
 
-    print(f'blob detector benchmark  ({info["date"]}; {info["cpu"]}, {info["cpu_count"]} CPUs, '
+    print(f'blob detector benchmark  ({info["date"]}; {info["cpu"]}, {info["cores"]} CPUs, '
           f'{info["platform"]}; Python {info["python"]}, numpy {info["numpy"]}, '
           f'scipy {info["scipy"]}; load average {load0:.2f} at start, '
           f'{info["load_average"][0]:.2f} at end)')

@@ -43,8 +43,8 @@ from scipy import ndimage
 
 __all__ = [
     'ENCODINGS', 'ColourRange', 'NAMED_RANGES', 'BlobParams', 'Blob', 'check_encoding', 'hsv',
-    'to_rgb', 'candidates', 'target_pixels', 'target_masks', 'detect', 'bearings', 'widths',
-    'draw_boxes', 'camera_for_frame',
+    'to_rgb', 'candidates', 'target_pixels', 'target_masks', 'blob_of', 'detect', 'bearings',
+    'widths', 'draw_boxes', 'camera_for_frame',
 ]
 
 #: Accepted image encodings (sensor_msgs/Image names) and their channel count.
@@ -384,6 +384,51 @@ def target_masks(image: np.ndarray, encoding: str, params: BlobParams) -> list[n
     return out
 
 
+def blob_of(mask: np.ndarray, camera: CameraModel, min_area: int, r0: int = 0, c0: int = 0
+            ) -> Blob:
+    """The blob of one target's matches (module docstring): the largest 8-connected
+    component of ``mask``, its bearing, width and box.
+
+    Parameters
+    ----------
+    mask : np.ndarray, shape (h, w), bool
+        The matches, in the window of the image whose first row and column are ``r0`` and
+        ``c0`` (the whole image by default; all of its columns on a strip).
+    camera : Pinhole or Panoramic
+    min_area : int
+        Pixels of the smallest blob that is seen.
+
+    Returns
+    -------
+    Blob
+    """
+    labels, n = ndimage.label(mask, structure=_EIGHT)
+    if n == 0:
+        return Blob(False, math.nan, 0, math.nan, math.nan)
+    if camera.wraps and camera.width > 1:
+        labels = _merge_seam(labels, n)
+    area = np.bincount(labels.ravel(), minlength=n + 1)
+    area[0] = 0
+    best = int(np.argmax(area))
+    if area[best] < min_area:
+        return Blob(False, math.nan, int(area[best]), math.nan, math.nan)
+    rows, cols = np.nonzero(labels == best)
+    rows, cols = rows + r0, (cols + c0).astype(np.float64)
+    if camera.wraps:
+        cols = _columns_unwrapped(cols, camera.width)
+        u = float(np.mean(cols))
+        width = (cols.max() - cols.min() + 1.0) * camera.angle_per_pixel
+        u = (u + 0.5) % camera.width - 0.5
+    else:
+        u = float(np.mean(cols))
+        edges = camera.bearing_of_column(np.array((cols.min() - 0.5, cols.max() + 0.5)))
+        width = abs(float(edges[0] - edges[1]))
+    box = (int(rows.min()), int(rows.max()), int(cols.min()) % camera.width,
+           int(cols.max()) % camera.width)
+    return Blob(True, float(camera.bearing_of_column(u)), int(area[best]), float(width), u,
+                box)
+
+
 def detect(image: np.ndarray, encoding: str, camera: CameraModel, params: BlobParams
            ) -> dict[str, Blob]:
     """Find each target's blob (module docstring for the model).
@@ -424,30 +469,7 @@ def detect(image: np.ndarray, encoding: str, camera: CameraModel, params: BlobPa
         c1 = camera.width - 1 if camera.wraps else int(cols.max())
         mask = np.zeros((int(rows.max()) - r0 + 1, c1 - c0 + 1), dtype=bool)
         mask[rows - r0, cols - c0] = True
-        labels, n = ndimage.label(mask, structure=_EIGHT)
-        if camera.wraps and camera.width > 1:
-            labels = _merge_seam(labels, n)
-        area = np.bincount(labels.ravel(), minlength=n + 1)
-        area[0] = 0
-        best = int(np.argmax(area))
-        if area[best] < params.min_area:
-            out[name] = Blob(False, math.nan, int(area[best]), math.nan, math.nan)
-            continue
-        rows, cols = np.nonzero(labels == best)
-        rows, cols = rows + r0, (cols + c0).astype(np.float64)
-        if camera.wraps:
-            cols = _columns_unwrapped(cols, camera.width)
-            u = float(np.mean(cols))
-            width = (cols.max() - cols.min() + 1.0) * camera.angle_per_pixel
-            u = (u + 0.5) % camera.width - 0.5
-        else:
-            u = float(np.mean(cols))
-            edges = camera.bearing_of_column(np.array((cols.min() - 0.5, cols.max() + 0.5)))
-            width = abs(float(edges[0] - edges[1]))
-        box = (int(rows.min()), int(rows.max()), int(cols.min()) % camera.width,
-               int(cols.max()) % camera.width)
-        out[name] = Blob(True, float(camera.bearing_of_column(u)), int(area[best]),
-                         float(width), u, box)
+        out[name] = blob_of(mask, camera, params.min_area, r0, c0)
     return out
 
 
