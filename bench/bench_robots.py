@@ -1,19 +1,21 @@
 """CLIS through the standard path: learning on the Husky in PyBullet, or on our simulator.
 
-    python bench/bench_robots.py [--profile husky] [--conditions view,async] [--seeds 3]
-                                 [--episodes 24] [--rtf 3] [--jobs 2] [--lockstep]
-                                 [--out docs/figures/robots]
-    python bench/bench_robots.py --profile cr --native --episodes 300 --rtf 0 --jobs 3 \
-        --time-limit 60 --wander 5 --out docs/figures/robots/cr
+    python bench/bench_robots.py                    # the Husky: View x 3 seeds, Async x 1
+    python bench/bench_robots.py [--profile husky] [--conditions view,async:1] [--seeds 3]
+                                 [--episodes 45] [--jobs 4] [--camera 160x120]
+                                 [--time-limit 45] [--wander 5] [--out docs/figures/robots]
+    python bench/bench_robots.py --profile cr --native --conditions view,async --episodes 300 \
+        --jobs 3 --time-limit 60 --wander 5 --out docs/figures/robots/cr
 
 Each run is the robot and ``clis run --robot ros --profile P --condition C --seed S --episodes
 N`` (the CLIS graph in ``/clis``, the blob detector, the robot adapter), on a ROS_DOMAIN_ID of
-its own, ``--jobs`` runs at a time. The robot: ``--profile husky``, the Husky world
-(``husky_world world``, its clock at ``--rtf`` times wall time), a robot nobody here wrote;
-``--profile cr``, our simulator as a plain world, started by ``clis run`` itself (``--speed
-RTF``, always in lockstep). ``--native`` (profile cr): the same conditions and seeds through
-the native path too, headless (``clis experiment``, which ``clis run --robot sim`` equals row
-for row), saved as ``OUT/runs/native-C-seedS.json``, and the table compares the two.
+its own, ``--jobs`` runs at a time. ``--conditions`` names the conditions, each run on
+``--seeds`` seeds or on the number after its colon (``async:1``: seed 0 only). The robot:
+``--profile husky``, the Husky world (``husky_world world``), a robot nobody here wrote;
+``--profile cr``, our simulator as a plain world, started by ``clis run`` itself. ``--native``
+(profile cr): the same conditions and seeds through the native path too, headless (``clis
+experiment``, which ``clis run --robot sim`` equals row for row), saved as
+``OUT/runs/native-C-seedS.json``, and the table compares the two.
 Every run's episodes go to ``OUT/runs/P-C-seedS.json`` (reached, duration, return,
 collisions, who acted; the small summaries the figure is drawn from), then ``OUT/P.png`` (the
 success rate per third of the runs, per condition: the mean over seeds with its 95%
@@ -24,11 +26,14 @@ goes on. ``--only`` runs some of the runs, ``--adopt`` saves a finished run's fo
 ``--redraw`` draws the table and the figure again from the saved runs without running
 anything.
 
-The Husky world does not wait for the graph unless ``--lockstep`` (the world's ``lockstep``
-parameter and ``clis run --lockstep``: it holds its clock at each camera frame, 20 Hz, until
-the command on it); without, at a higher ``--rtf`` the modules decide later in sim time, and the
-learner says so (records that did not arrive). The table reports the wall time of each run and
-the learner's late-record warnings beside the success rates.
+Both robots wait for the graph: our simulator always, the Husky world in lockstep (its
+``lockstep`` parameter and ``clis run --lockstep``: it holds its clock at each camera frame
+until the command on it; frames at 10 Hz, its default camera and lidar rate, when every
+decision period of the condition is a whole number of them, as View's 0.5 s; else 20 Hz), so
+that a run is the same however loaded the host is, and its clock runs as fast as the graph
+answers (``--rtf``, the clock over wall time, 0 = no pacing). ``--no-lockstep`` runs the Husky
+world free at ``--rtf`` instead: the modules then decide later in sim time the slower the host,
+and the learner says so (records that did not arrive; the table counts these warnings).
 """
 
 from __future__ import annotations
@@ -49,6 +54,16 @@ ROOT = Path(__file__).resolve().parent.parent
 #: Student's t at 97.5% for n - 1 degrees of freedom (n seeds), for the 95% interval.
 T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
         9: 2.262}
+
+
+def frame_rate(condition: str) -> float:
+    """The Husky world's frame rate in lockstep for ``condition`` [Hz]: 10 Hz (its default
+    camera and lidar rate) when every decision period of the condition's modules is a whole
+    number of its frames (View: 0.5 s), else 20 Hz (Async: 0.25, 0.5 and 1.2 s)."""
+    from clis_learner.core.config import load_clis_params
+    from clis_modules.core.modules import condition_periods
+    periods = [tau for _, tau in condition_periods(load_clis_params(), condition)]
+    return 10.0 if all(abs(tau * 10.0 - round(tau * 10.0)) < 1e-9 for tau in periods) else 20.0
 
 
 def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, domain: int,
@@ -80,15 +95,18 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
     if not done and run_dir.exists():
         shutil.rmtree(run_dir)                  # a run that learned nothing: afresh
     if done < episodes:
+        rate = frame_rate(condition)
         held = ['-p', 'lockstep:=true', *(x for k in ('clock', 'odom', 'scan', 'image')
-                                          for x in ('-p', f'{k}_rate:=20.0'))] if lockstep else []
+                                          for x in ('-p', f'{k}_rate:={rate!r}'))
+                ] if lockstep else []
         if camera:
             w, h = camera.split('x')
             held += ['-p', f'width:={int(w)}', '-p', f'height:={int(h)}']
         world = (subprocess.Popen(
             [sys.executable, '-m', 'husky_world.world_node', '--ros-args', '-p',
-             f'real_time_factor:={rtf!r}', *held], env=env, stdout=subprocess.DEVNULL,
-            stderr=subprocess.STDOUT) if profile == 'husky' else None)
+             f'real_time_factor:={rtf!r}', *held], env=env,
+            stdout=open(home / 'world.log', 'a'), stderr=subprocess.STDOUT)
+            if profile == 'husky' else None)
         speed = (['--lockstep'] if lockstep else []) if world is not None \
             else ['--speed', repr(rtf)]
         t0 = time.monotonic()
@@ -126,11 +144,17 @@ def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
     log = run_dir / 'logs' / 'learner.log'
     late = sum(line.count('did not arrive') for line in
                (log.read_text().splitlines() if log.is_file() else []))
+    # the waits that timed out (a node late by more than its timeout: the run went on
+    # without it there, not in lockstep): the arbiter's, our simulator's, the Husky world's
+    from clis_app.graph.supervise import lockstep_timeouts
+    world = run_dir.parent / 'world.log'
+    timeouts = lockstep_timeouts(run_dir) + (
+        world.read_text(errors='replace').count('running free') if world.is_file() else 0)
     condition, seed = rows[0]['condition'], int(rows[0]['seed'])
     run = {'profile': profile, 'condition': condition, 'seed': seed, 'rtf': rtf,
            'lockstep': lockstep, 'episode_keys': episode_keys, 'wall_s': round(wall, 1),
            'planned': planned, **({'camera': camera} if camera else {}),
-           'late_warnings': late,
+           'late_warnings': late, 'lockstep_timeouts': timeouts,
            'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
                          'duration': float(r['duration']), 'ret': float(r['ret']),
                          'collisions': int(float(r['collisions'])),
@@ -260,6 +284,12 @@ def report(out: Path, profile: str) -> str:
             f'{len(rs[0]["episodes"])} | {cell(first)} | {cell(last)} | {per_seed} | '
             f'{sum(r["wall_s"] for r in rs) / len(rs) / 60:.1f} | '
             f'{sum(r["late_warnings"] for r in rs)} |')
+    waits = [(c, r['seed'], r['lockstep_timeouts']) for (c, _), rs in by.items() for r in rs
+             if 'lockstep_timeouts' in r]
+    if waits:
+        lines.append('\nlockstep timeouts per run (a wait that timed out: the run went on '
+                     'without the late node there): '
+                     + ', '.join(f'{c} seed {s} {n}' for c, s, n in waits))
     for r in partial:
         eps = [e['reached'] for e in r['episodes']]
         k = len(eps) // 3
@@ -310,21 +340,23 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('--profile', default='husky', choices=('husky', 'cr'))
-    p.add_argument('--conditions', default='view,async')
+    p.add_argument('--conditions', default='view,async:1',
+                   help='conditions, each on --seeds seeds or on C:N seeds')
     p.add_argument('--seeds', type=int, default=3)
-    p.add_argument('--episodes', type=int, default=24)
-    p.add_argument('--rtf', type=float, default=3.0, help='the world clock / wall clock')
-    p.add_argument('--jobs', type=int, default=2, help='runs at a time')
+    p.add_argument('--episodes', type=int, default=45)
+    p.add_argument('--rtf', type=float, default=0.0,
+                   help='the world clock / wall clock (0: as fast as the graph answers)')
+    p.add_argument('--jobs', type=int, default=4, help='runs at a time')
     p.add_argument('--time-limit', type=float, default=45.0,
                    help="the profile's episode.time_limit for the runs [s of the robot's clock]")
     p.add_argument('--wander', type=float, default=5.0,
                    help="the profile's episode.wander_time for the runs [s]")
     p.add_argument('--out', type=Path, default=ROOT / 'docs' / 'figures' / 'robots')
-    p.add_argument('--lockstep', action='store_true',
+    p.add_argument('--lockstep', action=argparse.BooleanOptionalAction, default=True,
                    help='husky: the world waits for the graph (module docstring)')
-    p.add_argument('--camera', default='', metavar='WxH',
-                   help="husky: the world's image size, e.g. 160x120 (its camera_info gives "
-                        "the detector the intrinsics); default: the world's")
+    p.add_argument('--camera', default='160x120', metavar='WxH',
+                   help="husky: the world's image size (its camera_info gives the detector "
+                        "the intrinsics); '' = the world's default")
     p.add_argument('--native', action='store_true',
                    help='cr: the native path on the same conditions and seeds too')
     p.add_argument('--work', type=Path, default=ROOT / 'results' / 'bench_robots',
@@ -346,19 +378,23 @@ def main() -> int:
         print(f'adopted {r["condition"]} seed {r["seed"]}: {len(r["episodes"])} episodes')
     if not args.redraw and not args.adopt:
         from concurrent.futures import ThreadPoolExecutor
-        conditions = args.conditions.split(',')
+        seeds = {c: int(n) if n else args.seeds
+                 for c, _, n in (x.partition(':') for x in args.conditions.split(','))}
+        conditions = list(seeds)
         if args.native and not all((args.out / 'runs' / f'native-{c}-seed{s}.json').exists()
-                                   for c in conditions for s in range(args.seeds)):
+                                   for c in conditions for s in range(seeds[c])):
+            if len(set(seeds.values())) != 1:
+                p.error('--native runs every condition on --seeds seeds: no C:N')
             run_native(conditions, args.seeds, args.episodes, args.out, keys)
         # a run whose summary is saved already is not run again (an interrupted benchmark
         # goes on)
         only = {tuple(x.split(':')) for x in args.only.split(',') if x}
-        todo = [(c, s) for c in args.conditions.split(',') for s in range(args.seeds)
+        todo = [(c, s) for c in conditions for s in range(seeds[c])
                 if not complete(args.out / 'runs' / f'{args.profile}-{c}-seed{s}.json',
                                 args.episodes) and (not only or (c, str(s)) in only)]
         # each run on a ROS_DOMAIN_ID that no other process of the project holds (claimed
         # with a lock for as long as this process lives: a concurrent benchmark or run cannot
-        # take it, as one did when ids were drawn from the process id)
+        # take it)
         from clis_app.graph.ros_env import pick_domain_id
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:
@@ -371,8 +407,15 @@ def main() -> int:
                 print(f'{r["condition"]} seed {r["seed"]}: '
                       f'{sum(e["reached"] for e in r["episodes"])}/{len(r["episodes"])} '
                       f'reached, {r["wall_s"] / 60:.1f} min', flush=True)
-        print(f'all runs: {(time.monotonic() - t0) / 60:.1f} min on {os.cpu_count()} CPUs '
+        wall = (time.monotonic() - t0) / 60
+        print(f'all runs: {wall:.1f} min on {os.cpu_count()} CPUs '
               f'({time.strftime("%Y-%m-%d")})')
+        if todo:                        # what this benchmark took, beside its runs
+            (args.out / f'{args.profile}-benchmark.json').write_text(json.dumps(
+                {'command': ' '.join(['python', 'bench/bench_robots.py', *sys.argv[1:]]),
+                 'runs': [f'{c}:{s}' for c, s in todo], 'wall_min': round(wall, 1),
+                 'cpus': os.cpu_count(), 'jobs': args.jobs,
+                 'date': time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, indent=1))
     print(report(args.out, args.profile))
     return 0
 

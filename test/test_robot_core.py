@@ -346,3 +346,59 @@ def test_a_run_that_goes_on_numbers_its_episodes_from_the_first_episode():
         starts += [int(ev.values['episode']) for ev in step.events if ev.name == 'start']
         t = round(t + 0.05, 9)
     assert starts == [41, 42]
+
+
+def test_in_lockstep_the_next_start_waits_at_its_frame_for_the_learner():
+    """``step(hold=True)`` (a robot in lockstep): once the wander time is over, a learner that
+    has not reported the last episode holds the frame (no wander draw, nothing else), and the
+    same frame starts the episode once it reports; the starts and the wander's draws are
+    those of a learner that reported in time, however late it reports."""
+    p = load_profile('cr')
+    rules = episode_rules(p, 0.05, 1.0, -0.1)
+    reader = RobotReader(p, rules.rule)
+    scan = Scan(0.0, -math.pi / 2, math.pi / 6, 0.0, 0.5, np.full(7, 0.5))
+
+    def run(late: int) -> tuple[list[float], list[list[float]], int]:
+        """Two episodes (time limit) with a learner that reports ``late`` tries after the
+        frame its start waits for."""
+        gate = EpisodeGate(wait_for_learner=True)
+        eps = RobotEpisodes(rules.episode, load_sim_params().wander, rules.contact,
+                            rules.goal_radius, reader.sectors.angles, gate,
+                            np.random.default_rng(3), 'wander', goal_width=rules.goal_width)
+        starts, wander, held, t, ended = [], [], 0, 0.0, 0
+        while len(starts) < 2:
+            r = reader.reading(t, scan, 0.0, 0.0, *blobs())
+            for tries in range(late + 1):
+                if tries == late or late == 0:
+                    gate.on_progress(ended, ended)
+                step = eps.step(r, t, hold=True)
+                if not step.held:
+                    break
+                assert not step.events and step.wander is None and step.reward is None
+                held += 1
+            else:
+                raise AssertionError('the learner reported and the frame is still held')
+            for ev in step.events:
+                if ev.name == 'start':
+                    starts.append(t)
+                else:
+                    ended = int(ev.values['episode'])
+            if step.wander is not None:
+                wander.append(step.wander.tolist())
+            t = round(t + 0.05, 9)
+        return starts, wander, held
+
+    in_time = run(0)
+    assert in_time[2] == 0
+    for late in (1, 4):
+        starts, wander, held = run(late)
+        assert held == 2 * late, 'the first start and the next wait'
+        assert (starts, wander) == in_time[:2]
+    # without hold (a real robot) the robot wanders on until the learner reports
+    gate = EpisodeGate(wait_for_learner=True)
+    eps = RobotEpisodes(rules.episode, load_sim_params().wander, rules.contact,
+                        rules.goal_radius, reader.sectors.angles, gate,
+                        np.random.default_rng(3), 'wander', goal_width=rules.goal_width)
+    steps = [eps.step(reader.reading(0.05 * k, scan, 0.0, 0.0, *blobs()), 0.0)
+             for k in range(200)]
+    assert all(s.wander is not None and not s.held for s in steps)

@@ -118,6 +118,25 @@ class FakeRobot:
                 return True
         return False
 
+    def frame(self, t: float, camera: bool = True) -> None:
+        """Clock, odom, scan (and camera) of frame ``t``, no wheels_cmd (a robot in
+        lockstep)."""
+        self.t = round(t - DT, 9)
+        real = self.pub_camera
+        if not camera:                                # the camera's message goes nowhere
+            self.pub_camera = self.node.create_publisher(JointState, f'{NS}/elsewhere', 1)
+        self.step(wheels=None)
+        self.pub_camera = real
+
+    def arrived(self, msgs: list, t: float, wait: float) -> list:
+        """The messages stamped ``t`` that arrive within ``wait`` wall seconds."""
+        end = time.monotonic() + wait
+        while True:
+            got = [m for m in msgs if abs(conv.from_time(m.header.stamp) - t) < 1e-6]
+            if got or time.monotonic() > end:
+                return got
+            self.executor.spin_once(timeout_sec=0.01)
+
     def drain(self, seconds: float = 0.5) -> None:
         """Take every message that arrives within ``seconds`` of wall time (a spin takes one
         message: after a wait, hundreds may be queued)."""
@@ -316,23 +335,7 @@ def test_lockstep_answers_each_frame_once_and_a_decision_frame_with_its_decision
     proc = start_node('cr_bridge.robot_node', *node_args(
         '-p', 'node.lockstep:=true', '-p', 'node.decision_periods:=[0.25]'))
 
-    def frame(t: float, camera: bool = True) -> None:
-        """Clock, odom, scan (and camera) of frame ``t``."""
-        robot.t = round(t - DT, 9)
-        real = robot.pub_camera
-        if not camera:                                # the camera's message goes nowhere
-            robot.pub_camera = robot.node.create_publisher(JointState, f'{NS}/elsewhere', 1)
-        robot.step(wheels=None)
-        robot.pub_camera = real
-
-    def arrived(msgs: list, t: float, wait: float) -> list:
-        """The messages stamped ``t`` that arrive within ``wait`` wall seconds."""
-        end = time.monotonic() + wait
-        while True:
-            got = [m for m in msgs if abs(conv.from_time(m.header.stamp) - t) < 1e-6]
-            if got or time.monotonic() > end:
-                return got
-            robot.executor.spin_once(timeout_sec=0.01)
+    frame, arrived = robot.frame, robot.arrived
     try:
         # the first frame, sent again until the node has read it; the episode starts there
         # ('here'): a decision instant, answered by the decision alone
@@ -364,6 +367,41 @@ def test_lockstep_answers_each_frame_once_and_a_decision_frame_with_its_decision
     assert 'Traceback' not in out and 'lockstep' in out, out
     stamps = [conv.from_time(m.header.stamp) for m in robot.cmds]
     assert stamps == sorted(stamps) and len(stamps) == len(set(stamps)), stamps
+
+
+def test_lockstep_holds_a_starting_frame_until_the_learner_has_reported(fake):
+    """node.lockstep with node.wait_for_learner: the frame at which an episode is due (here
+    the first, start 'here') is neither read nor answered before the learner has reported
+    (the robot waits there, as on any host, instead of wandering on while the learner
+    learns); once it reports, that frame starts the episode, is read, and its decision
+    answers it."""
+    robot = fake()
+    robot.subscribe_cmd_vel(TwistStamped)
+    robot.listen(LaserScan, f'{NS}/ir')
+    progress = robot.node.create_publisher(
+        DiagnosticArray, f'{NS}/learner/progress',
+        QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    proc = start_node('cr_bridge.robot_node', *node_args(
+        '-p', 'node.lockstep:=true', '-p', 'node.decision_periods:=[0.25]', '-p',
+        'node.wait_for_learner:=true'))
+    t0, ir = PERIOD, robot.msgs[f'{NS}/ir']
+    try:
+        # the frame, sent again and again as a held robot does, for long after the node is up
+        for _ in range(40):
+            robot.frame(t0)
+            robot.drain(0.1)
+        assert robot.arrived(ir, t0, 0.0) == [], 'read before the learner reported'
+        assert robot.cmds == [], 'answered before the learner reported'
+        progress.publish(conv.episode_msg('progress', 0.0, episode=0, version=0))
+        assert robot.arrived(ir, t0, 10.0), 'the held frame was not read once it reported'
+        assert robot.arrived(robot.cmds, t0, 0.5) == [], 'the start waits for its decision'
+        robot.pub_wheels.publish(conv.wheels_cmd_msg(WHEELS, t0, 'base_link'))
+        got = robot.arrived(robot.cmds, t0, 10.0)
+        assert len(got) == 1 and moving(got[0]), got
+        assert len(robot.arrived(ir, t0, 0.0)) == 1, 'the frame read once'
+    finally:
+        out = stop(proc)
+    assert 'Traceback' not in out, out
 
 
 def test_a_bad_profile_or_topics_that_clash_stop_the_node_in_one_line():

@@ -115,8 +115,10 @@ class WorldNodeParams:
                              "'ground_truth' with each odom (for benchmarks only)")
     lockstep: bool = opt(False, doc='true: after each image (sim time t) the physics waits for '
                          'a cmd_vel stamped at or after t (module docstring)')
-    command_timeout: float = opt(2.0, 0.01, 3600.0, doc='[s wall] lockstep: no such cmd_vel '
-                                 'for this long: run free until the next cmd_vel')
+    command_timeout: float = opt(30.0, 0.01, 3600.0, doc='[s wall] lockstep: no such cmd_vel '
+                                 'for this long: run free until the next cmd_vel (the graph '
+                                 "holds a frame while its learner learns: the learner's "
+                                 'timeout)')
 
 
 class FrameHold:

@@ -33,7 +33,11 @@ until a ``cmd_vel`` stamped with it: our simulator in world mode, the Husky worl
 detector's ``camera`` and the odometry and scan of its instant are in), and each is answered by
 one ``cmd_vel`` stamped with it: at once with the command in force, or, at the decision instants
 ``t0 + l tau_i`` of a running episode (``node.decision_periods``), by the arbiter's decision on
-it (:class:`cr_bridge.core.ros_robot.Lockstep`). The timer then only watches the inputs' age.
+it (:class:`cr_bridge.core.ros_robot.Lockstep`). The frame at which the next episode is due
+while the learner has not reported the last one (``node.wait_for_learner``) is held, unread
+and unanswered, until it has: the robot waits there instead of wandering on for as long as
+the learner takes, so the episode starts where it would on any host. The timer then only
+watches the inputs' age.
 
 Safety, in the node's clock (the robot's ``/clock`` with ``-p use_sim_time:=true``): the
 bridge's command guard (:class:`cr_bridge.core.safety.CommandGuard`): a command with NaN/inf is
@@ -91,6 +95,8 @@ __all__ = ['RobotNodeParams', 'RobotNode', 'main']
 
 #: Wall seconds between two looks at the graph for the type of cmd_vel's subscriber.
 GRAPH_PERIOD = 0.2
+#: Wall seconds between two tries of a frame held for the learner (lockstep).
+HELD_RETRY = 0.01
 #: The inputs whose age is watched.
 INPUTS = ('odom', 'scan', 'camera')
 
@@ -191,6 +197,10 @@ class RobotNode(Node):
             self.graph_timer = self.create_timer(GRAPH_PERIOD, self._look_for_cmd_vel_type,
                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.timer = self.create_timer(self.cfg.period, self._tick)
+        self.held: float | None = None          # lockstep: a frame held for the learner
+        if self.lock is not None:           # the robot's clock stands while a frame is held
+            self.held_timer = self.create_timer(HELD_RETRY, self._retry_held,
+                                                clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(
             f'profile {self.cfg.profile}: odom {robot["odom"]}, scan {robot["scan"]}, cmd_vel '
             f'{self.cmd_vel_topic} ({self.setting}); stale timeout '
@@ -280,6 +290,12 @@ class RobotNode(Node):
         if t is not None:
             self._reading(t)
 
+    def _retry_held(self) -> None:
+        """Lockstep: step the frame held for the learner again (it starts the episode once
+        the learner has reported)."""
+        if self.held is not None and self.state == 'running':
+            self._reading(self.held)
+
     def _on_cmd(self, msg) -> None:
         if self.state != 'running':
             return                          # stale inputs: nothing is commanded
@@ -343,7 +359,11 @@ class RobotNode(Node):
         r = self.reader.reading(now, self.scan, v, w, *self.blobs)
         wall = time.monotonic()
         running = self.episodes.running
-        step = self.episodes.step(r, wall)
+        step = self.episodes.step(r, wall, hold=self.lock is not None)
+        if step.held:                       # the learner's turn: this frame stays unanswered
+            self.held = now
+            return
+        self.held = None
         if running and step.reward is not None:
             self.pub_reward.publish(conv.reward_msg(step.reward, self.episodes.ret,
                                                     self.episodes.episode, now))

@@ -120,11 +120,15 @@ class Reading:
 @dataclass
 class Step:
     """What one reading gives: events (in order), the reward of the frame (None outside an
-    episode), and the wheel command of the wander policy (None: the controller drives)."""
+    episode), and the wheel command of the wander policy (None: the controller drives).
+    ``held``: the next episode is due but the learner has not reported the last one, and the
+    caller holds the robot (:meth:`RobotEpisodes.step` with ``hold``): nothing else is given
+    and the same reading is to be stepped again."""
 
     events: list[Event] = field(default_factory=list)
     reward: float | None = None
     wander: np.ndarray | None = None
+    held: bool = False
 
 
 class RobotEpisodes:
@@ -207,8 +211,11 @@ class RobotEpisodes:
             return not math.isnan(r.dest_width) and r.dest_width >= self.goal_width
         return not math.isnan(r.dest_distance) and r.dest_distance <= self.goal_radius
 
-    def step(self, r: Reading, now: float) -> Step:
-        """One sensor frame at wall time ``now`` (wall time is for the learner gate only)."""
+    def step(self, r: Reading, now: float, hold: bool = False) -> Step:
+        """One sensor frame at wall time ``now`` (wall time is for the learner gate only).
+        ``hold``: a robot that waits for its controller (lockstep) waits at this frame for
+        the learner, once the next episode is due, instead of wandering on while the learner
+        learns (:attr:`Step.held`): the episode then starts where it would on any host."""
         out = Step()
         contact = self.is_contact(r)
         book = self.book
@@ -235,10 +242,14 @@ class RobotEpisodes:
         if not book.ready:
             book.poll(now)
         here = self.start_mode == 'here' and book.episode == 0
-        if book.ready and not self.in_goal(r) and (
-                here or r.t - self.wander_since >= self.p.wander_time - 1e-6):
+        due = not self.in_goal(r) and (
+            here or r.t - self.wander_since >= self.p.wander_time - 1e-6)
+        if book.ready and due:
             self.wander_since = None
             out.events.append(book.start(r.t, start='here' if here else 'wander'))
+            return out
+        if hold and due:
+            out.held = True                 # no draw of the wander policy: as on any host
             return out
         out.wander = self.policy.act(r.observation(self.wander_since))
         return out
