@@ -1,7 +1,7 @@
 """CLIS through the standard path: learning on the Husky in PyBullet, or on our simulator.
 
-    python bench/bench_robots.py                    # the Husky: View x 3 seeds, Async x 1
-    python bench/bench_robots.py [--profile husky] [--conditions view,async:1] [--seeds 3]
+    python bench/bench_robots.py              # the Husky: View 3 seeds x 45, Async 1 x 24
+    python bench/bench_robots.py [--profile husky] [--conditions view,async:1:24] [--seeds 3]
                                  [--episodes 45] [--jobs 4] [--camera 160x120]
                                  [--time-limit 45] [--wander 5] [--out docs/figures/robots]
     python bench/bench_robots.py --profile cr --native --conditions view,async --episodes 300 \
@@ -10,7 +10,8 @@
 Each run is the robot and ``clis run --robot ros --profile P --condition C --seed S --episodes
 N`` (the CLIS graph in ``/clis``, the blob detector, the robot adapter), on a ROS_DOMAIN_ID of
 its own, ``--jobs`` runs at a time. ``--conditions`` names the conditions, each run on
-``--seeds`` seeds or on the number after its colon (``async:1``: seed 0 only). The robot:
+``--seeds`` seeds of ``--episodes`` episodes, or as its colons say (``async:1:24``: seed 0
+only, 24 episodes). The robot:
 ``--profile husky``, the Husky world (``husky_world world``), a robot nobody here wrote;
 ``--profile cr``, our simulator as a plain world, started by ``clis run`` itself. ``--native``
 (profile cr): the same conditions and seeds through the native path too, headless (``clis
@@ -340,8 +341,9 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('--profile', default='husky', choices=('husky', 'cr'))
-    p.add_argument('--conditions', default='view,async:1',
-                   help='conditions, each on --seeds seeds or on C:N seeds')
+    p.add_argument('--conditions', default='view,async:1:24',
+                   help='conditions, each on --seeds seeds and --episodes episodes, or C:N '
+                        'on N seeds, or C:N:E on N seeds and E episodes')
     p.add_argument('--seeds', type=int, default=3)
     p.add_argument('--episodes', type=int, default=45)
     p.add_argument('--rtf', type=float, default=0.0,
@@ -378,27 +380,30 @@ def main() -> int:
         print(f'adopted {r["condition"]} seed {r["seed"]}: {len(r["episodes"])} episodes')
     if not args.redraw and not args.adopt:
         from concurrent.futures import ThreadPoolExecutor
-        seeds = {c: int(n) if n else args.seeds
-                 for c, _, n in (x.partition(':') for x in args.conditions.split(','))}
+        # C, C:N (N seeds) or C:N:E (and E episodes)
+        spec = {x.split(':')[0]: x.split(':')[1:] for x in args.conditions.split(',')}
+        seeds = {c: int(v[0]) if v and v[0] else args.seeds for c, v in spec.items()}
+        episodes = {c: int(v[1]) if len(v) > 1 else args.episodes for c, v in spec.items()}
         conditions = list(seeds)
         if args.native and not all((args.out / 'runs' / f'native-{c}-seed{s}.json').exists()
                                    for c in conditions for s in range(seeds[c])):
-            if len(set(seeds.values())) != 1:
-                p.error('--native runs every condition on --seeds seeds: no C:N')
+            if any(spec.values()):
+                p.error('--native runs every condition on --seeds seeds and --episodes '
+                        'episodes: no C:N')
             run_native(conditions, args.seeds, args.episodes, args.out, keys)
         # a run whose summary is saved already is not run again (an interrupted benchmark
         # goes on)
         only = {tuple(x.split(':')) for x in args.only.split(',') if x}
         todo = [(c, s) for c in conditions for s in range(seeds[c])
                 if not complete(args.out / 'runs' / f'{args.profile}-{c}-seed{s}.json',
-                                args.episodes) and (not only or (c, str(s)) in only)]
+                                episodes[c]) and (not only or (c, str(s)) in only)]
         # each run on a ROS_DOMAIN_ID that no other process of the project holds (claimed
         # with a lock for as long as this process lives: a concurrent benchmark or run cannot
         # take it)
         from clis_app.graph.ros_env import pick_domain_id
         t0 = time.monotonic()
         with ThreadPoolExecutor(args.jobs) as pool:
-            futures = [pool.submit(run_one, args.profile, c, s, args.episodes, args.rtf,
+            futures = [pool.submit(run_one, args.profile, c, s, episodes[c], args.rtf,
                                    pick_domain_id(), args.out, keys, args.lockstep, args.work,
                                    args.camera if args.profile == 'husky' else '')
                        for c, s in todo]
