@@ -4,9 +4,10 @@
                                        [--out docs/figures/robots/localization]
 
 One run of Async (innate, view, place) on the Husky world through the standard path, the world
-in lockstep (``husky_world world -p lockstep:=true``, its sensors at 20 Hz, ``clis run --robot
-ros --profile husky --lockstep``) and with its ``ground_truth`` topic on: the body's true pose,
-which no module reads. A probe in this process records the place module's belief
+in lockstep (``husky_world world -p lockstep:=true``, its clock and sensors at 20 Hz, its
+camera 160 x 120 as in ``bench_robots.py``, ``clis run --robot ros --profile husky
+--lockstep``) and with its ``ground_truth`` topic on: the body's true pose, which no module
+reads. A probe in this process records the place module's belief
 (``/clis/place/belief``, the grid marginalised over heading, published while someone listens),
 the true pose of the same instant and the episodes' starts. Per belief, grouped by the time since
 its episode's start (the belief is uniform at each start, paper II-D):
@@ -93,7 +94,8 @@ def record(args: argparse.Namespace, domain: int) -> list[dict]:
         world = subprocess.Popen(
             [sys.executable, '-m', 'husky_world.world_node', '--ros-args',
              '-p', 'real_time_factor:=0.0', '-p', 'lockstep:=true', '-p', 'ground_truth:=true',
-             *(x for k in ('odom', 'scan', 'image') for x in ('-p', f'{k}_rate:=20.0'))],
+             '-p', 'width:=160', '-p', 'height:=120',
+             *(x for k in ('clock', 'odom', 'scan', 'image') for x in ('-p', f'{k}_rate:=20.0'))],
             stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
         try:
             proc = subprocess.run(

@@ -363,6 +363,29 @@ def test_the_last_proposal_is_sent_again_while_the_clock_stands_at_it(setup):
     assert not g.step(g.s.on_wall)                 # the clock went on: the arbiter had it
 
 
+def test_readings_between_episodes_are_a_wander_and_a_stand_still_a_stall(setup):
+    """After an episode's end, readings that go on coming are the robot wandering to its next
+    start: no warning however long that takes; readings that stop coming with no start event
+    say why, once."""
+    g = Graph(setup, 'view')
+    g.start()
+    g.tick(0)
+    g.step(g.s.end, T0 + DT)
+    t = T0 + DT
+    for _ in range(int(4 * STALL_WARNING / 0.5)):      # a long wander, readings coming
+        t += DT
+        g.readings(t)
+        g.t = t
+        g.wall += 0.5
+        g.step(g.s.on_wall)
+    assert not [a for a in g.out if isinstance(a, Log)]
+    for _ in range(int(STALL_WARNING / 0.5) + 4):      # then they stop: the clock stands
+        g.wall += 0.5
+        g.step(g.s.on_wall)
+    (log,) = [a for a in g.out if isinstance(a, Log)]
+    assert log.level == 'warning' and log.text.startswith('no start event seen')
+
+
 def test_a_decision_due_for_long_says_why_once(setup):
     g = Graph(setup, 'view')
     g.start()

@@ -217,6 +217,7 @@ class Stall:
 
     since: float | None = None      # wall time
     said: bool = False
+    readings: float = -math.inf     # the latest reading's time when last looked at
 
 
 # ------------------------------------------------------------------------------ readings
@@ -633,6 +634,10 @@ class ModuleSchedule:
                 and self._last_instant(self.now()) > self.last.instant + TOL:
             why = f'no decision marked for {self._last_instant(self.now()):.3f}'
         elif ep.t0 is None and rd.camera and rd.camera[-1].t > ep.ended + TOL:
+            if rd.camera[-1].t > stall.readings + TOL:
+                # readings still come: the robot wanders to its next start, nothing stalls
+                stall.readings, stall.since = rd.camera[-1].t, None
+                return
             why = f'no start event seen, readings at {rd.camera[-1].t:.3f}'
         elif decision.due and ep.t0 is not None:
             why = 'due'
