@@ -404,6 +404,32 @@ def test_lockstep_holds_a_starting_frame_until_the_learner_has_reported(fake):
     assert 'Traceback' not in out, out
 
 
+def test_the_first_episode_waits_for_the_interfaces_subscribers(fake):
+    """node.start_subscribers (clis run sets them): in lockstep the frame at which the first
+    episode is due is neither read nor answered until the interface's topics have matched
+    them (a reading sent before is lost to a node that matches later); then it starts there."""
+    robot = fake()
+    robot.subscribe_cmd_vel(TwistStamped)
+    robot.listen(LaserScan, f'{NS}/ir')
+    proc = start_node('cr_bridge.robot_node', *node_args(
+        '-p', 'node.lockstep:=true', '-p', 'node.decision_periods:=[0.25]', '-p',
+        "node.start_subscribers:=['reward:1']"))
+    t0, ir = PERIOD, robot.msgs[f'{NS}/ir']
+    try:
+        for _ in range(40):
+            robot.frame(t0)
+            robot.drain(0.1)
+        assert ir == [], 'read before the reward had its subscriber'
+        assert robot.cmds == [], 'answered before the reward had its subscriber'
+        robot.listen(Vector3Stamped, f'{NS}/reward')       # the learner's subscription
+        assert robot.arrived(ir, t0, 10.0), 'not read once the reward had its subscriber'
+        robot.pub_wheels.publish(conv.wheels_cmd_msg(WHEELS, t0, 'base_link'))
+        assert len(robot.arrived(robot.cmds, t0, 10.0)) == 1
+    finally:
+        out = stop(proc)
+    assert 'Traceback' not in out, out
+
+
 def test_a_bad_profile_or_topics_that_clash_stop_the_node_in_one_line():
     """Exit code 2 and one line naming the key (a node at the root: its odom and cmd_vel
     would be the robot's)."""

@@ -56,10 +56,17 @@ def test_the_plan_puts_a_waiting_robot_in_lockstep_with_the_condition_periods(tm
     cr = {c.name: c for c in plan_graph('async', 0, tmp_path, 0.0, robot='ros',
                                          profile='cr').children}
     assert cr['sim'].params['node.lockstep'] is True
+    # it waits out the adapter holding a frame for the learner (config/bridge.yaml's 30 s)
+    assert cr['sim'].params['node.command_timeout'] == 30.0
     assert cr['sim'].params['node.start_subscribers'] == ['image_raw:1', 'ir:1', 'odom:1',
                                                           'cmd_vel:1']
     assert cr['robot'].params['node.lockstep'] is True
     assert cr['robot'].params['node.decision_periods'] == taus
+    # its first episode once the graph has matched its interface: 3 modules, the arbiter
+    # and the learner follow the episodes, view reads the IR, place the wheels, the learner
+    # the rewards, the arbiter commands, the detector sends the camera
+    assert cr['robot'].params['node.start_subscribers'] == [
+        'episode:5', 'ir:1', 'wheels:1', 'reward:1', 'wheels_cmd:1', 'camera:1']
     assert cr['detector'].params['overlay'] is False
     for lockstep in (False, True):
         husky = {c.name: c for c in plan_graph('view', 0, tmp_path, 0.0, robot='ros',

@@ -64,7 +64,7 @@ from cr_sim.core.episodes import Event
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.profile import CMD_VEL_TYPES, load_profile
 from cr_sim.core.wander import WanderParams
-from cr_sim.interface import open_robot_interface
+from cr_sim.interface import open_robot_interface, parse_counts, unmatched
 import numpy as np
 import rclpy
 from rclpy.clock import Clock, ClockType
@@ -123,6 +123,10 @@ class RobotNodeParams(RobotSideParams):
     decision_periods: tuple[float, ...] = param(0.0, 60.0, doc="lockstep: the graph's decision "
                                                 'periods tau_i [s] (clis run sets them); 0 = '
                                                 'every frame of an episode waits for a decision')
+    start_subscribers: tuple[str, ...] = param(doc="'TOPIC:COUNT' entries: the first episode "
+                                               "waits until the interface's topics have "
+                                               "matched these; '' = none")
+    graph_timeout: float = param(0.0, 3600.0, doc='wall seconds to wait for them [s]')
 
 
 class RobotNode(Node):
@@ -148,7 +152,9 @@ class RobotNode(Node):
         self.wheel_base = body.wheel_base
         self.guard = CommandGuard(body.v_wheel_max or math.inf, self.cfg.watchdog,
                                   body.wheel_base, body.v_max, body.omega_max)
-        self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout)
+        self.gate = EpisodeGate(self.cfg.wait_for_learner, self.cfg.learner_timeout,
+                                graph_timeout=self.cfg.graph_timeout)
+        self.start_counts = parse_counts(self.cfg.start_subscribers, 'node.start_subscribers')
         self.reader = RobotReader(profile, rules.rule)
         self.ir_angles = self.reader.sectors.angles
         self.episodes = RobotEpisodes(rules.episode, wander, rules.contact, rules.goal_radius,
@@ -359,7 +365,10 @@ class RobotNode(Node):
         r = self.reader.reading(now, self.scan, v, w, *self.blobs)
         wall = time.monotonic()
         running = self.episodes.running
-        step = self.episodes.step(r, wall, hold=self.lock is not None)
+        ready = self.episodes.book.started_any or not unmatched(self, self.start_counts)
+        step = self.episodes.step(r, wall, hold=self.lock is not None, ready=ready)
+        if step.warning:
+            self.get_logger().warning(step.warning)
         if step.held:                       # the learner's turn: this frame stays unanswered
             self.held = now
             return

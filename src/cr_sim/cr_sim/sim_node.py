@@ -224,8 +224,11 @@ class SimNode(Node):
     def check_hold(self) -> None:
         """Start the next episode or let the clock run once the gate opens."""
         action, said = self.core.check_hold(lambda: unmatched(self, self.start_subscribers))
-        for level, text in said:
-            getattr(self.get_logger(), level)(text)
+        for level, text in said:            # (one call site per severity: rclpy's rule)
+            if level == 'info':
+                self.get_logger().info(text)
+            else:
+                self.get_logger().warning(text)
         if action == 'start':
             self._start_episode()
         elif action == 'resend':

@@ -145,8 +145,14 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         _plan_bridge(plan, seed, speed, arena, device, first_episode)
         return plan
     if robot == 'ros':
+        # the adapter's first episode waits until DDS has matched the graph's subscribers of
+        # its interface (as the simulator's: a reading sent before is lost to a module)
+        nodes = len(modules) + 2 + bool(record)
+        readers = {k: sum(k in sensors[m] for m in modules) for k in ('ir', 'wheels')}
+        matched = [f'episode:{nodes}', *(f'{k}:{n}' for k, n in readers.items() if n),
+                   f'reward:{1 + bool(record)}', 'wheels_cmd:1', 'camera:1']
         _plan_ros(plan, seed, profile, speed, arena, [tau for _, tau in periods], lockstep,
-                  first_episode)
+                  first_episode, matched)
         return plan
     # the first episode waits until DDS has matched the graph's subscribers of the robot
     # interface (a message sent before is lost to them: the learner's first rewards, a
@@ -199,9 +205,20 @@ def _plan_bridge(plan: GraphPlan, seed: int, speed: float, arena: str, device: s
 ROS_NAMESPACE = '/clis'
 
 
+def hold_timeout() -> float:
+    """How long our simulator as a world waits for a command [s wall]: its own
+    ``node.command_timeout`` (``config/sim.yaml``), at least the robot adapter's
+    ``node.learner_timeout`` (``config/bridge.yaml``: the longest it holds a frame while the
+    learner learns)."""
+    from clis_base.params import config_dir, ros_parameters
+    sim = ros_parameters(config_dir() / 'sim.yaml', 'sim')['node']['command_timeout']
+    robot = ros_parameters(config_dir() / 'bridge.yaml', 'robot')['node']['learner_timeout']
+    return max(float(sim), float(robot))
+
+
 def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
               arena: str = '', periods: Sequence[float] = (), lockstep: bool = False,
-              first_episode: int = 1) -> None:
+              first_episode: int = 1, matched: Sequence[str] = ()) -> None:
     """A robot already on the ROS graph (its ``odom``, ``scan``, ``image_raw`` and
     ``camera_info`` at the root or under its profile's namespace; ``cmd_vel`` taken): the CLIS
     graph in :data:`ROS_NAMESPACE`, with the blob detector (the robot's image to the ``camera``
@@ -215,7 +232,9 @@ def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
     adapter makes the episodes) that publishes its camera image (``node.standard_topics``), at
     ``speed``, always in lockstep (as under ``--robot sim``), its first tick once the detector
     and the adapter have matched its topics. ``first_episode`` > 1: the adapter numbers its
-    episodes from there (a run that goes on from a checkpoint)."""
+    episodes from there (a run that goes on from a checkpoint). ``matched``: the adapter's
+    first episode waits for these ``'TOPIC:COUNT'`` of its interface (its
+    ``node.start_subscribers``)."""
     from cr_sim.core.profile import load_profile
     plan.namespace = ROS_NAMESPACE
     for child in plan.children:
@@ -228,6 +247,7 @@ def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
             'node.episodes': False, 'node.standard_topics': True,
             'node.speed_factor': float(speed), 'node.seed': seed, 'node.arena_file': arena,
             'node.start': 'A', 'node.lockstep': True,
+            'node.command_timeout': hold_timeout(),
             'node.start_subscribers': [f'{top.image}:1', f'{top.scan}:1', f'{top.odom}:1',
                                        f'{top.cmd_vel}:1']},
             restart='never', follows_episodes=False))
@@ -241,6 +261,7 @@ def _plan_ros(plan: GraphPlan, seed: int, profile: str, speed: float = 1.0,
         'node.profile': profile, 'node.seed': seed, 'node.wait_for_learner': True,
         'node.lockstep': bool(lockstep),
         'node.decision_periods': [float(p) for p in periods] or [0.0],
+        'node.start_subscribers': list(matched),
         **({'node.first_episode': first_episode} if first_episode > 1 else {}),
         'use_sim_time': True}, remaps={'__ns': ROS_NAMESPACE}, restart='never'))
 

@@ -129,6 +129,7 @@ class Step:
     reward: float | None = None
     wander: np.ndarray | None = None
     held: bool = False
+    warning: str | None = None          # a gate's wait that timed out (to log)
 
 
 class RobotEpisodes:
@@ -211,11 +212,13 @@ class RobotEpisodes:
             return not math.isnan(r.dest_width) and r.dest_width >= self.goal_width
         return not math.isnan(r.dest_distance) and r.dest_distance <= self.goal_radius
 
-    def step(self, r: Reading, now: float, hold: bool = False) -> Step:
+    def step(self, r: Reading, now: float, hold: bool = False, ready: bool = True) -> Step:
         """One sensor frame at wall time ``now`` (wall time is for the learner gate only).
         ``hold``: a robot that waits for its controller (lockstep) waits at this frame for
         the learner, once the next episode is due, instead of wandering on while the learner
-        learns (:attr:`Step.held`): the episode then starts where it would on any host."""
+        learns (:attr:`Step.held`): the episode then starts where it would on any host.
+        ``ready``: whether the graph's subscribers are matched (the first episode waits for
+        them, :meth:`EpisodeGate.first`)."""
         out = Step()
         contact = self.is_contact(r)
         book = self.book
@@ -238,9 +241,9 @@ class RobotEpisodes:
             self.policy.reset()
             if self._first:
                 self._first = False
-                book.first(now)
+                book.first(now, ready)
         if not book.ready:
-            book.poll(now)
+            _, out.warning = book.poll(now, ready)
         here = self.start_mode == 'here' and book.episode == 0
         due = not self.in_goal(r) and (
             here or r.t - self.wander_since >= self.p.wander_time - 1e-6)
