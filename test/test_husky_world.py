@@ -274,18 +274,23 @@ def test_frame_hold_runs_free_after_the_timeout_until_the_next_command():
     hold = FrameHold(timeout=2.0, resend=0.2)
     assert hold.held_at(0.0, now=0.0)               # t = 0: no command has ever come
     assert hold.poll(1.99) == 'resend'
-    assert hold.poll(2.0) == 'go' and hold.timeouts == 1
-    assert not hold.held_at(0.1, now=2.1), 'free: the next frames are not held'
-    assert hold.poll(2.1) == 'go'
-    assert not hold.held_at(0.2, now=2.2)
+    assert hold.poll(500.0) == 'resend', 'before the first command: no timeout'
+    hold.on_command(0.0)                            # the controller is up
+    assert hold.poll(500.0) == 'go'
+    assert hold.held_at(0.05, now=500.0)
+    assert hold.poll(501.99) == 'resend'
+    assert hold.poll(502.0) == 'go' and hold.timeouts == 1
+    assert not hold.held_at(0.1, now=502.1), 'free: the next frames are not held'
+    assert hold.poll(502.1) == 'go'
+    assert not hold.held_at(0.2, now=502.2)
     hold.on_command(0.05)                           # any command re-arms, an old stamp too
-    assert hold.held_at(0.3, now=2.3)
-    assert hold.poll(2.31) == 'wait'
+    assert hold.held_at(0.3, now=502.3)
+    assert hold.poll(502.31) == 'wait'
     hold.on_command(0.3)
-    assert hold.poll(2.32) == 'go' and hold.timeouts == 1
-    assert hold.held_at(0.4, now=3.0)               # the timeout counts from each hold
-    assert hold.poll(4.99) == 'resend'
-    assert hold.poll(5.0) == 'go' and hold.timeouts == 2
+    assert hold.poll(502.32) == 'go' and hold.timeouts == 1
+    assert hold.held_at(0.4, now=503.0)             # the timeout counts from each hold
+    assert hold.poll(504.99) == 'resend'
+    assert hold.poll(505.0) == 'go' and hold.timeouts == 2
 
 
 # ------------------------------------------------------------------------------ the node

@@ -36,7 +36,8 @@ publishing an image (the camera frame at sim time t) the physics does not step o
 ``cmd_vel`` whose ``header.stamp`` is at or after t (within :data:`STAMP_TOLERANCE` s) arrives,
 or ``command_timeout`` s of wall time passed: then it runs free, as without lockstep, until the
 next ``cmd_vel`` arrives (one warning per such timeout), and is held again at the next image.
-Before the first command it is thus held at t = 0 for ``command_timeout``. While it waits it
+Before the first command it is held at t = 0 until one comes (a graph that starts slowly on
+a loaded host is waited for). While it waits it
 serves its callbacks and re-publishes the held instant's ``/clock``, odom, scan, image and
 camera_info (all five, stamped t) every :data:`RESEND_EVERY` s of wall time, so that a message
 lost while the graph connects does not stall the run. Whether odom and scan are published at
@@ -128,7 +129,8 @@ class FrameHold:
     ----------
     timeout : float
         [s of wall time] a frame held this long without its command is let go, and the world
-        runs free (nothing is held) until the next command re-arms the hold.
+        runs free (nothing is held) until the next command re-arms the hold; before the first
+        command the world waits for its controller however long it takes to come up.
     resend : float
         [s of wall time] :meth:`poll` says ``'resend'`` this long after the frame was
         published or last re-published.
@@ -170,7 +172,7 @@ class FrameHold:
         if self.latest >= self.t - self.tolerance:
             self.t = None
             return 'go'
-        if now - self._since >= self.timeout:
+        if now - self._since >= self.timeout and self.latest > -math.inf:
             self.t, self.free = None, True
             self.timeouts += 1
             return 'go'
