@@ -146,11 +146,14 @@ def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
     late = sum(line.count('did not arrive') for line in
                (log.read_text().splitlines() if log.is_file() else []))
     # the waits that timed out (a node late by more than its timeout: the run went on
-    # without it there, not in lockstep): the arbiter's, our simulator's, the Husky world's
+    # without it there, not in lockstep): the arbiter's, our simulator's, the Husky world's,
+    # the adapter's for the graph and the learner
     from clis_app.graph.supervise import lockstep_timeouts
-    world = run_dir.parent / 'world.log'
-    timeouts = lockstep_timeouts(run_dir) + (
-        world.read_text(errors='replace').count('running free') if world.is_file() else 0)
+    timeouts = lockstep_timeouts(run_dir)
+    for log, marker in ((run_dir.parent / 'world.log', 'running free'),
+                        (run_dir / 'logs' / 'robot.log', 'was not connected within'),
+                        (run_dir / 'logs' / 'robot.log', 'the learner did not report')):
+        timeouts += log.read_text(errors='replace').count(marker) if log.is_file() else 0
     condition, seed = rows[0]['condition'], int(rows[0]['seed'])
     run = {'profile': profile, 'condition': condition, 'seed': seed, 'rtf': rtf,
            'lockstep': lockstep, 'episode_keys': episode_keys, 'wall_s': round(wall, 1),
@@ -314,7 +317,8 @@ def report(out: Path, profile: str) -> str:
         import matplotlib
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
-        fig, ax = plt.subplots(figsize=(5.5, 3.4))
+        import numpy as np
+        fig, (ax, runs_ax) = plt.subplots(1, 2, figsize=(11, 3.6))
         colour = {c: f'C{i}' for i, c in enumerate(sorted({c for c, _ in curves}))}
         for k, ((cond, path), c) in enumerate(curves.items()):
             err = [[100 * (m - lo) for m, lo, _ in c], [100 * (hi - m) for m, _, hi in c]]
@@ -323,7 +327,25 @@ def report(out: Path, profile: str) -> str:
                         ls='--' if path == 'native' else '-', color=colour[cond],
                         label=f'{cond}' + ((', native' if path == 'native' else ', standard')
                                            if two else '')
-                        + f' ({len(by[(cond, path)])} seeds)')
+                        + f' ({len(by[(cond, path)])} seed'
+                        + ('s)' if len(by[(cond, path)]) > 1 else ')'))
+        # each run, episode by episode: the share reached over a window of episodes
+        for (cond, path), rs in by.items():
+            for r in sorted(rs, key=lambda r: r['seed']):
+                eps = [e['reached'] for e in sorted(r['episodes'], key=lambda e: e['episode'])]
+                w = max(5, len(eps) // 20)
+                ma = np.convolve(eps, np.ones(w) / w, mode='valid')
+                runs_ax.plot(np.arange(w, len(eps) + 1), 100 * ma, color=colour[cond],
+                             ls=('--', '-', ':', '-.')[(r['seed'] % 3) + 1
+                                                        if path != 'native' else 0],
+                             lw=1.2, alpha=0.8,
+                             label=f'{cond}' + (', native' if path == 'native' else '')
+                             + f' seed {r["seed"]}')
+        runs_ax.set_xlabel('episode')
+        runs_ax.set_ylabel('reached over the last max(5, N/20) [%]', fontsize=8)
+        runs_ax.set_ylim(-5, 105)
+        runs_ax.set_title('each run (N episodes)')
+        runs_ax.legend(fontsize=6, ncol=2)
         ax.set_xticks([1, 2, 3], ['first third', 'middle', 'last third'])
         ax.set_ylabel('episodes reached [%]')
         ax.set_ylim(-5, 105)

@@ -66,7 +66,7 @@ def test_the_plan_puts_a_waiting_robot_in_lockstep_with_the_condition_periods(tm
     # and the learner follow the episodes, view reads the IR, place the wheels, the learner
     # the rewards, the arbiter commands, the detector sends the camera
     assert cr['robot'].params['node.start_subscribers'] == [
-        'episode:5', 'ir:1', 'wheels:1', 'reward:1', 'wheels_cmd:1', 'camera:1']
+        'episode:5', 'ir_ranges:1', 'wheels:1', 'reward:1', 'wheels_cmd:1', 'camera:1']
     assert cr['detector'].params['overlay'] is False
     for lockstep in (False, True):
         husky = {c.name: c for c in plan_graph('view', 0, tmp_path, 0.0, robot='ros',

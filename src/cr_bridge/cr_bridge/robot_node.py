@@ -368,7 +368,9 @@ class RobotNode(Node):
         ready = self.episodes.book.started_any or not unmatched(self, self.start_counts)
         step = self.episodes.step(r, wall, hold=self.lock is not None, ready=ready)
         if step.warning:
-            self.get_logger().warning(step.warning)
+            lacking = unmatched(self, self.start_counts)
+            self.get_logger().warning(step.warning + (f' (not matched: {", ".join(lacking)})'
+                                                      if lacking else ''))
         if step.held:                       # the learner's turn: this frame stays unanswered
             self.held = now
             return

@@ -148,8 +148,10 @@ def plan_graph(condition: str, seed: int, out: Path, speed: float, resume: str =
         # the adapter's first episode waits until DDS has matched the graph's subscribers of
         # its interface (as the simulator's: a reading sent before is lost to a module)
         nodes = len(modules) + 2 + bool(record)
-        readers = {k: sum(k in sensors[m] for m in modules) for k in ('ir', 'wheels')}
-        matched = [f'episode:{nodes}', *(f'{k}:{n}' for k, n in readers.items() if n),
+        # (the modules read the IR as ir_ranges)
+        readers = {t: sum(k in sensors[m] for m in modules)
+                   for k, t in (('ir', 'ir_ranges'), ('wheels', 'wheels'))}
+        matched = [f'episode:{nodes}', *(f'{t}:{n}' for t, n in readers.items() if n),
                    f'reward:{1 + bool(record)}', 'wheels_cmd:1', 'camera:1']
         _plan_ros(plan, seed, profile, speed, arena, [tau for _, tau in periods], lockstep,
                   first_episode, matched)
