@@ -31,7 +31,8 @@ Both robots wait for the graph: our simulator always, the Husky world in lockste
 ``lockstep`` parameter and ``clis run --lockstep``: it holds its clock at each camera frame
 until the command on it; frames at 10 Hz, its default camera and lidar rate, when every
 decision period of the condition is a whole number of them, as View's 0.5 s; else 20 Hz), so
-that a run is the same however loaded the host is, and its clock runs as fast as the graph
+that each decision is made on the frame of its instant however loaded the host is (the table
+counts the waits that timed out), and its clock runs as fast as the graph
 answers (``--rtf``, the clock over wall time, 0 = no pacing). ``--no-lockstep`` runs the Husky
 world free at ``--rtf`` instead: the modules then decide later in sim time the slower the host,
 and the learner says so (records that did not arrive; the table counts these warnings).

@@ -369,12 +369,14 @@ def test_lockstep_answers_each_frame_once_and_a_decision_frame_with_its_decision
     assert stamps == sorted(stamps) and len(stamps) == len(set(stamps)), stamps
 
 
-def test_lockstep_holds_a_starting_frame_until_the_learner_has_reported(fake):
-    """node.lockstep with node.wait_for_learner: the frame at which an episode is due (here
-    the first, start 'here') is neither read nor answered before the learner has reported
-    (the robot waits there, as on any host, instead of wandering on while the learner
-    learns); once it reports, that frame starts the episode, is read, and its decision
-    answers it."""
+@pytest.mark.parametrize('gate', ['learner', 'graph'])
+def test_lockstep_holds_a_starting_frame_until_its_gate_opens(fake, gate):
+    """In lockstep the frame at which an episode is due is neither read nor answered before
+    its gate opens: with node.wait_for_learner, the learner's report of the last episode (the
+    robot waits there, as on any host, instead of wandering on while the learner learns);
+    with node.start_subscribers (clis run sets them), for the first episode, the interface's
+    subscribers (a reading sent before is lost to a node that matches later). Then that frame
+    starts the episode, is read once, and its decision answers it."""
     robot = fake()
     robot.subscribe_cmd_vel(TwistStamped)
     robot.listen(LaserScan, f'{NS}/ir')
@@ -383,48 +385,26 @@ def test_lockstep_holds_a_starting_frame_until_the_learner_has_reported(fake):
         QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
     proc = start_node('cr_bridge.robot_node', *node_args(
         '-p', 'node.lockstep:=true', '-p', 'node.decision_periods:=[0.25]', '-p',
-        'node.wait_for_learner:=true'))
+        'node.wait_for_learner:=true' if gate == 'learner'
+        else "node.start_subscribers:=['reward:1']"))
     t0, ir = PERIOD, robot.msgs[f'{NS}/ir']
     try:
         # the frame, sent again and again as a held robot does, for long after the node is up
         for _ in range(40):
             robot.frame(t0)
             robot.drain(0.1)
-        assert robot.arrived(ir, t0, 0.0) == [], 'read before the learner reported'
-        assert robot.cmds == [], 'answered before the learner reported'
-        progress.publish(conv.episode_msg('progress', 0.0, episode=0, version=0))
-        assert robot.arrived(ir, t0, 10.0), 'the held frame was not read once it reported'
+        assert ir == [], f'read before the {gate} gate opened'
+        assert robot.cmds == [], f'answered before the {gate} gate opened'
+        if gate == 'learner':
+            progress.publish(conv.episode_msg('progress', 0.0, episode=0, version=0))
+        else:
+            robot.listen(Vector3Stamped, f'{NS}/reward')   # the learner's subscription
+        assert robot.arrived(ir, t0, 10.0), 'the held frame was not read once the gate opened'
         assert robot.arrived(robot.cmds, t0, 0.5) == [], 'the start waits for its decision'
         robot.pub_wheels.publish(conv.wheels_cmd_msg(WHEELS, t0, 'base_link'))
         got = robot.arrived(robot.cmds, t0, 10.0)
         assert len(got) == 1 and moving(got[0]), got
         assert len(robot.arrived(ir, t0, 0.0)) == 1, 'the frame read once'
-    finally:
-        out = stop(proc)
-    assert 'Traceback' not in out, out
-
-
-def test_the_first_episode_waits_for_the_interfaces_subscribers(fake):
-    """node.start_subscribers (clis run sets them): in lockstep the frame at which the first
-    episode is due is neither read nor answered until the interface's topics have matched
-    them (a reading sent before is lost to a node that matches later); then it starts there."""
-    robot = fake()
-    robot.subscribe_cmd_vel(TwistStamped)
-    robot.listen(LaserScan, f'{NS}/ir')
-    proc = start_node('cr_bridge.robot_node', *node_args(
-        '-p', 'node.lockstep:=true', '-p', 'node.decision_periods:=[0.25]', '-p',
-        "node.start_subscribers:=['reward:1']"))
-    t0, ir = PERIOD, robot.msgs[f'{NS}/ir']
-    try:
-        for _ in range(40):
-            robot.frame(t0)
-            robot.drain(0.1)
-        assert ir == [], 'read before the reward had its subscriber'
-        assert robot.cmds == [], 'answered before the reward had its subscriber'
-        robot.listen(Vector3Stamped, f'{NS}/reward')       # the learner's subscription
-        assert robot.arrived(ir, t0, 10.0), 'not read once the reward had its subscriber'
-        robot.pub_wheels.publish(conv.wheels_cmd_msg(WHEELS, t0, 'base_link'))
-        assert len(robot.arrived(robot.cmds, t0, 10.0)) == 1
     finally:
         out = stop(proc)
     assert 'Traceback' not in out, out

@@ -126,8 +126,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--lockstep', action='store_true',
                    help='with --robot ros: the robot waits for the graph, holding its clock '
                         'at each camera frame until the cmd_vel that answers it (a simulator '
-                        "that offers it: the Husky world's -p lockstep:=true); the run is then "
-                        'the same on any host. Our simulator (profile cr) always does')
+                        "that offers it: the Husky world's -p lockstep:=true); each decision is "
+                        'then made on the frame of its instant, however loaded the host. Our '
+                        'simulator (profile cr) always does')
     p.add_argument('--device', default='emulator', metavar='URL',
                    help="with --robot bridge: 'emulator' (default: cr_bridge's device emulator "
                         'on the loopback; --speed X runs its clock X times wall time) or the '

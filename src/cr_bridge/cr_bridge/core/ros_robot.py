@@ -300,8 +300,8 @@ class Lockstep:
     instant are in, and answers every frame with one ``cmd_vel`` stamped with it: at once, with
     the command in force, unless an episode runs and the frame is a decision instant
     ``t_0 + l tau_i`` of the graph's modules (the instants the module nodes decide at), where
-    the arbiter's decision on that frame answers it. The run is then the same on any host, as
-    the native graph's lockstep makes it.
+    the arbiter's decision on that frame answers it. Each decision is then made on the frame of
+    its instant however loaded the host is, as the native graph's lockstep makes it.
 
     Parameters
     ----------
