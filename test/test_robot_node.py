@@ -405,6 +405,12 @@ def test_lockstep_holds_a_starting_frame_until_its_gate_opens(fake, gate):
         got = robot.arrived(robot.cmds, t0, 10.0)
         assert len(got) == 1 and moving(got[0]), got
         assert len(robot.arrived(ir, t0, 0.0)) == 1, 'the frame read once'
+        # the robot still held there resends the frame (its answer was lost): answered again
+        robot.cmds.clear()
+        robot.frame(t0)
+        again = robot.arrived(robot.cmds, t0, 10.0)
+        assert again and moving(again[0]), again
+        assert len(robot.arrived(ir, t0, 0.0)) == 1, 'and not read again'
     finally:
         out = stop(proc)
     assert 'Traceback' not in out, out

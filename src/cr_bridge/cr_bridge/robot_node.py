@@ -204,6 +204,7 @@ class RobotNode(Node):
                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.timer = self.create_timer(self.cfg.period, self._tick)
         self.held: float | None = None          # lockstep: a frame held for the learner
+        self.answer: tuple | None = None        # the last command sent and its stamp
         if self.lock is not None:           # the robot's clock stands while a frame is held
             self.held_timer = self.create_timer(HELD_RETRY, self._retry_held,
                                                 clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -280,7 +281,11 @@ class RobotNode(Node):
     def _on_camera(self, msg) -> None:
         t, bearings, widths = bconv.blobs_from_msg(msg, self.blob_names)
         if self.lock is not None and t <= self.t:
-            return                          # lockstep: a frame read already (resent)
+            # lockstep: a frame read already, resent by a robot still held there: the answer
+            # to it was lost (sent before the robot's subscription matched): send it again
+            if self.answer is not None and abs(t - self.answer[1]) < 1e-9:
+                self._publish_cmd(*self.answer)
+            return
         self.blobs = (bearings, widths)
         self._seen('camera', t)
 
@@ -430,6 +435,7 @@ class RobotNode(Node):
         self._publish_cmd(u, now)
 
     def _publish_cmd(self, u, t: float) -> None:
+        self.answer = (u, t)
         if self.pub_cmd is None:
             return
         self.pub_cmd.publish(conv.cmd_from_wheels(finite_or_zero(u), self.wheel_base, t,
