@@ -311,6 +311,9 @@ class RobotNode(Node):
         if self.state != 'running':
             return                          # stale inputs: nothing is commanded
         now = self.now_s()
+        if self.lock is None and (stale := self.fresh.stale(now)):
+            self._stale(stale, now)         # a command between two checks of the timer
+            return
         try:
             u = conv.wheels_from_cmd(msg, self.wheel_base)
         except ValueError as exc:
