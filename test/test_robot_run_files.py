@@ -93,13 +93,14 @@ def test_the_models_lengths_follow_the_robot_and_the_runs_preset():
     exploration and the densities of (7) are the Cyber Rodent's at the robot's size: lengths
     and speeds times s, (7)'s epsilon over s^2, the speed cap the robot's own; the preset's
     values are the ones scaled; the Cyber Rodent's own profile changes nothing."""
-    from clis_app.graph.robot_ros import flat_keys, robot_params
+    from clis_app.graph.robot_ros import robot_params
+    from clis_base.params import flatten
     from clis_learner.core.config import preset_overrides
     s = 10.0 / 3.0
     for overrides in (None, preset_overrides('improved') | {'view.policy.sigma': 0.2}):
         base = load_clis_params(overrides=overrides)
         keys = robot_params('husky', overrides)
-        robot = load_clis_params(overrides={**(overrides or {}), **flat_keys(keys)})
+        robot = load_clis_params(overrides={**(overrides or {}), **flatten(keys)})
         inst = {n: p for n, _, p in base.instances}
         big = {n: p for n, _, p in robot.instances}
         assert robot.common.d_react == pytest.approx(base.common.d_react * s)
@@ -132,13 +133,14 @@ def test_a_husky_run_goes_on_from_its_checkpoint(tmp_path):
     """``clis run --robot ros --profile husky --resume``: a checkpoint of the robot's own
     parameters (what its learner saved) is taken, one of the layout's size is refused."""
     from clis_app.cli import build_parser
-    from clis_app.graph.robot_ros import flat_keys, robot_arena, robot_params
+    from clis_app.graph.robot_ros import robot_arena, robot_params
     from clis_app.graph.run import _check_args
+    from clis_base.params import flatten
     from clis_learner.core.checkpoint import save_checkpoint
     from clis_learner.core.config import DEFAULT_PRESET, params_hash, preset_overrides
     from clis_modules.core.modules import arena_map, make_modules
     preset = preset_overrides(DEFAULT_PRESET)
-    own = load_clis_params(overrides={**preset, **flat_keys(robot_params('husky', preset))})
+    own = load_clis_params(overrides={**preset, **flatten(robot_params('husky', preset))})
     plain = load_clis_params(overrides=preset)
     for name, clis in (('own', own), ('plain', plain)):
         modules = make_modules(clis, 'view', *arena_map(robot_arena('husky')))

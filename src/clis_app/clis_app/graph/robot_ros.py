@@ -40,13 +40,13 @@ from typing import Any
 
 from clis_learner.core.config import ClisParams, load_clis_params
 from cr_sim.core.arena import Arena, arena_data, load_arena, scaled_arena
-from cr_sim.core.profile import load_profile
+from cr_sim.core.profile import RobotProfile, load_profile
 import yaml
 
 from clis_app import files
 
 __all__ = ['ARENA_FILE', 'PARAMS_FILE', 'robot_files', 'robot_arena', 'robot_params',
-           'module_params', 'flat_keys']
+           'module_params']
 
 ARENA_FILE = 'arena.yaml'
 PARAMS_FILE = 'robot_params.yaml'
@@ -58,12 +58,9 @@ def robot_files(profile: str, out: Path, write: bool = True,
     profile's own arena file and None when it is not scaled; else the scaled files (written
     with ``write``). ``overrides``: the run's CLIS keys (its preset and ``--params``, dotted),
     the values that are scaled."""
-    robot = load_profile(profile)
-    spec = robot.arena
-    arena = load_arena(spec.path(), robot_radius=0.0)
-    scale = spec.scale(arena.size)
+    robot, arena, scale = _layout(profile)
     if scale == 1.0:
-        return (str(spec.path()) if spec.file else ''), None
+        return (str(robot.arena.path()) if robot.arena.file else ''), None
     arena_file, params_file = out / ARENA_FILE, out / PARAMS_FILE
     if write:
         files.write_text(arena_file, yaml.safe_dump(arena_data(scaled_arena(arena, scale)),
@@ -73,35 +70,28 @@ def robot_files(profile: str, out: Path, write: bool = True,
     return str(arena_file), params_file
 
 
-def robot_arena(profile: str) -> Arena:
-    """The layout at the size of the robot of ``profile`` (what ``OUT/arena.yaml`` holds)."""
+def _layout(profile: str) -> tuple[RobotProfile, Arena, float]:
+    """The robot of ``profile``, its arena file's layout and the scale to the robot's size."""
     robot = load_profile(profile)
     arena = load_arena(robot.arena.path(), robot_radius=0.0)
-    scale = robot.arena.scale(arena.size)
+    return robot, arena, robot.arena.scale(arena.size)
+
+
+def robot_arena(profile: str) -> Arena:
+    """The layout at the size of the robot of ``profile`` (what ``OUT/arena.yaml`` holds)."""
+    _, arena, scale = _layout(profile)
     return arena if scale == 1.0 else scaled_arena(arena, scale)
 
 
 def robot_params(profile: str, overrides: Mapping[str, Any] | None = None) -> dict:
     """The CLIS keys that follow the robot of ``profile`` (module docstring), nested by
     section; empty for a robot at the layout's size. ``overrides``: as :func:`robot_files`."""
-    robot = load_profile(profile)
-    scale = robot.arena.scale(load_arena(robot.arena.path(), robot_radius=0.0).size)
+    robot, _, scale = _layout(profile)
     if scale == 1.0:
         return {}
     body = robot.body
     return module_params(load_clis_params(overrides=dict(overrides or {}) or None), scale,
                          robot.scan.range_max, body.v_wheel_max or body.v_max)
-
-
-def flat_keys(nested: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
-    """``{'view': {'d_max': 1.0}}`` as ``{'view.d_max': 1.0}``."""
-    out: dict[str, Any] = {}
-    for key, value in nested.items():
-        if isinstance(value, Mapping):
-            out.update(flat_keys(value, f'{prefix}{key}.'))
-        else:
-            out[f'{prefix}{key}'] = value
-    return out
 
 
 def module_params(clis: ClisParams, scale: float, range_max: float, wheel_limit: float

@@ -279,8 +279,10 @@ def _check_args(args: argparse.Namespace) -> str | None:
     from clis_modules.core.modules import arena_map, make_modules
     overrides = dict(args.clis_overrides)
     if args.robot == 'ros':                 # the learner's keys and arena are the robot's
-        from clis_app.graph.robot_ros import flat_keys, robot_arena, robot_params
-        overrides.update(flat_keys(robot_params(args.profile, args.clis_overrides)))
+        from clis_base.params import flatten
+
+        from clis_app.graph.robot_ros import robot_arena, robot_params
+        overrides.update(flatten(robot_params(args.profile, args.clis_overrides)))
         arena = robot_arena(args.profile)
     clis = load_clis_params(overrides=overrides or None)
     try:
