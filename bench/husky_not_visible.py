@@ -1,4 +1,4 @@
-"""Where View's *not visible* policy drives the Husky: stuck against what its lidar does not see.
+"""Where View's *not visible* policy drives the Husky: stuck behind it, where no module looks.
 
     python bench/husky_not_visible.py results/bench_robots/husky-view-seed1/run/checkpoint.npz
                                       [--poses 6] [--seed 5]
@@ -9,8 +9,8 @@ whatever else the robot senses) is a Gaussian over the wheel speeds with the mea
 std ``sigma`` of the checkpoint. This drives the Husky world (``husky_world.world``, no ROS)
 with that policy from ``--poses`` random free poses, a decision every 0.5 s for 45 s, and
 counts the decisions in which the robot is stuck: commanded over 0.3 m/s, it moves less than
-5 cm. Also printed: the nearest return of the forward lidar at the end (what a collision by the
-scan sectors would need to see).
+5 cm. Also printed: the lidar's nearest return at the end, all around (the profile's
+``episode.collision_sectors`` behind the robot count a collision below 0.65 m from the centre).
 """
 
 from __future__ import annotations

@@ -52,16 +52,17 @@ def test_scan_reads_the_walls_and_obstacle_at_their_ranges():
         x, y, yaw = w.pose()
         assert abs(yaw - math.pi / 2) < 0.01
         angles, ranges = w.scan_angles, w.scan()
-        assert len(ranges) == 181
-        assert angles[0] == pytest.approx(-math.pi / 2)
-        assert angles[-1] == pytest.approx(math.pi / 2)
-        assert angles[90] == pytest.approx(0.0, abs=1e-12)
-        assert ranges[90] == pytest.approx(HALF - y, abs=0.03)            # north wall
-        assert ranges[0] == pytest.approx(HALF - x, abs=0.03)             # east wall
-        assert ranges[180] == pytest.approx(x - 0.8 * 10 / 3, abs=0.03)   # S3's east face
+        assert len(ranges) == 360                         # all around, a ray per degree
+        assert angles[0] == pytest.approx(-math.pi)
+        assert angles[-1] == pytest.approx(math.pi - math.radians(1.0))
+        assert angles[180] == pytest.approx(0.0, abs=1e-12)
+        assert ranges[180] == pytest.approx(HALF - y, abs=0.03)           # north wall
+        assert ranges[90] == pytest.approx(HALF - x, abs=0.03)            # east wall
+        assert ranges[270] == pytest.approx(x - 0.8 * 10 / 3, abs=0.03)   # S3's east face
+        assert ranges[0] == pytest.approx(HALF + y, abs=0.03)             # behind: south wall
         assert np.all(np.isinf(ranges) | (ranges <= w.params.range_max))
     with make(start='', x=3.5, y=0.0, yaw=math.pi / 2, range_max=4.0) as w:
-        assert w.scan()[90] == math.inf, 'nothing within range_max'
+        assert w.scan()[180] == math.inf, 'nothing within range_max'
 
 
 def test_scan_never_sees_the_robot_itself(monkeypatch):
@@ -355,10 +356,11 @@ def test_node_publishes_the_standard_topics_and_obeys_cmd_vel(probe):
         odom = probe.msgs['odom'][-1]
         assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
         scan = probe.msgs['scan'][-1]
-        assert scan.header.frame_id == 'lidar' and len(scan.ranges) == 181
-        assert scan.angle_min == pytest.approx(-math.pi / 2)
-        assert scan.angle_min + 180 * scan.angle_increment == pytest.approx(scan.angle_max)
-        assert scan.angle_max == pytest.approx(math.pi / 2) and scan.range_max == 5.0
+        assert scan.header.frame_id == 'lidar' and len(scan.ranges) == 360
+        assert scan.angle_min == pytest.approx(-math.pi)
+        assert scan.angle_min + 359 * scan.angle_increment == pytest.approx(scan.angle_max)
+        assert scan.angle_max == pytest.approx(math.pi - math.radians(1.0))
+        assert scan.range_max == 5.0
         finite = [r for r in scan.ranges if math.isfinite(r)]
         assert finite and all(scan.range_min <= r <= scan.range_max for r in finite)
         image = probe.msgs['image_raw'][-1]

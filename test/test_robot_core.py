@@ -21,12 +21,14 @@ from cr_bridge.core.ros_robot import (
     finite_or_zero,
     robot_topic,
     scaled_arena,
+    scaled_wander,
 )
 from cr_bridge.core.safety import CommandGuard
 from cr_sim.core.arena import load_arena
 from cr_sim.core.gate import EpisodeGate
 from cr_sim.core.profile import RobotProfile, Topics, load_profile
 from cr_sim.core.sim import load_sim_params
+from cr_sim.core.wander import WanderParams
 import numpy as np
 import pytest
 
@@ -195,6 +197,27 @@ def test_a_sector_below_the_collision_range_is_a_collision_once_per_contact():
     assert rewards == [0.0, -0.1, 0.0, 0.0, -0.1]
 
 
+def test_a_collision_sector_behind_the_robot_is_a_collision_the_modules_do_not_read():
+    """The Husky's episode.collision_sectors (behind it, 100 to 260 deg): a return there
+    below the collision range is a collision (the reading's bump), once per contact, and the
+    modules' seven sectors do not change; without collision sectors it is none."""
+    e, reader = robot(load_profile('husky'))
+    clear, behind, side = lidar(5.0), lidar(5.0), lidar(5.0)
+    behind.ranges[ray(behind, 170.0)] = 0.6 + 0.04
+    side.ranges[ray(side, 95.0)] = 0.6 + 0.04       # between the 90-deg cone and the rear
+    r = reader.reading(0.0, behind, 0.0, 0.0, *blobs())
+    assert r.bump == 1 and r.ir.tolist() == [1.67] * 7
+    assert reader.reading(0.0, side, 0.0, 0.0, *blobs()).bump == 0
+    e.step(reader.reading(0.0, clear, 0.0, 0.0, *blobs()), 0.0)
+    rewards = [e.step(reader.reading(0.05 * k, scan, 0.0, 0.0, *blobs()), 0.0).reward
+               for k, scan in enumerate((behind, behind, clear, behind), 1)]
+    assert rewards == [-0.1, 0.0, 0.0, -0.1]
+    e, reader = robot(with_episode('husky', collision_sectors=[]))
+    e.step(reader.reading(0.0, clear, 0.0, 0.0, *blobs()), 0.0)
+    assert reader.behind is None
+    assert e.step(reader.reading(0.05, behind, 0.0, 0.0, *blobs()), 0.0).reward == 0.0
+
+
 def test_the_profiles_time_limit_and_wander_time():
     e, reader = robot(with_episode('husky', time_limit=1.0, wander_time=0.5))
     scan = lidar(5.0)
@@ -306,6 +329,18 @@ def test_the_arena_at_the_profiles_size():
         [c * 10 / 3 for m in arena.landmarks for c in (m.x, m.y)])
     assert big.short_obstacles[0].size == pytest.approx(
         tuple(v * 10 / 3 for v in arena.short_obstacles[0].size))
+
+
+def test_the_wander_moves_the_robot_the_same_share_of_a_bigger_arena():
+    cr = WanderParams(speed=0.3, turn_speed=0.3, avoid_distance=0.12, front_deg=30.0,
+                      steer_sigma=0.02, steer_max=0.1)
+    assert scaled_wander(cr, 1.0, 1.3) == cr, "the CR's arena: the simulator's wander as it is"
+    husky = scaled_wander(cr, 10.0 / 3.0, 1.0)
+    assert (husky.speed, husky.turn_speed) == (1.0, 1.0), 'x 10/3, at most v_max'
+    assert husky.avoid_distance == pytest.approx(0.4)
+    assert (husky.steer_sigma, husky.steer_max) == pytest.approx((0.2 / 3, 1.0 / 3))
+    assert husky.front_deg == 30.0, 'angles do not scale'
+    assert scaled_wander(cr, 10.0, 0.0).speed == pytest.approx(3.0), 'v_max 0: no limit'
 
 
 def test_lockstep_reads_a_frame_once_its_inputs_are_in_and_waits_at_decision_instants():

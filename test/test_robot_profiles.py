@@ -128,6 +128,9 @@ BAD = [
      'episode.collision_range = 0.5 is not below scan.range_max = 0.5'),
     ('cr', 'episode.reached.width_deg', 0.0,
      "episode.reached: rule 'size' needs width_deg or area_px above 0"),
+    ('husky', 'episode.collision_sectors.0.angle_deg', 200.0,
+     'episode.collision_sectors[0].angle_deg = 200.0 is out of range: must be in '
+     '[-180.0, 180.0]'),
     ('cr', 'episode.stale_timeout', 0.0,
      'episode.stale_timeout = 0.0 is out of range: must be in [0.01, 10.0]'),
     ('husky', 'arena.size', 3.0,

@@ -164,8 +164,8 @@ class HuskyWorldParams:
     lateral_friction_ratio: float = opt(0.1, 0.01, 1.0, doc="wheels' friction along the "
                                         'axle / along the rolling direction')
     range_max: float = opt(5.0, 0.5, 100.0, doc="[m] the lidar's range")
-    scan_rays: int = opt(181, 2, 3600, doc='rays of a scan')
-    scan_fov_deg: float = opt(180.0, 1.0, 360.0, doc="[deg] the scan's field of view, centred "
+    scan_rays: int = opt(360, 2, 3600, doc='rays of a scan')
+    scan_fov_deg: float = opt(360.0, 1.0, 360.0, doc="[deg] the scan's field of view, centred "
                               'on the heading')
     width: int = opt(320, 16, 1920, doc='[px] image width')
     height: int = opt(240, 16, 1440, doc='[px] image height')

@@ -24,8 +24,10 @@ to start when an interface topic would be a robot topic) and:
 Episodes and rewards are the bridge's own core (:class:`cr_bridge.core.episode.RobotEpisodes`)
 with the profile's rules (:func:`cr_bridge.core.ros_robot.episode_rules`): the destination
 reached by its apparent width (rule ``size``) or by the scan's return in its bearing (rule
-``range``), a collision when a sector reads less than ``episode.collision_range``, the
-profile's time limit, and its wander to the next start through cmd_vel.
+``range``), a collision when a sector (or one of ``episode.collision_sectors``) reads less
+than ``episode.collision_range``, the profile's time limit, and its wander to the next start
+through cmd_vel (the simulator's wander at the arena's scale,
+:func:`cr_bridge.core.ros_robot.scaled_wander`).
 
 Lockstep (``node.lockstep``, for a simulated robot that holds its clock at each camera frame
 until a ``cmd_vel`` stamped with it: our simulator in world mode, the Husky world's
@@ -87,6 +89,7 @@ from cr_bridge.core.ros_robot import (
     finite_or_zero,
     robot_topic,
     scaled_arena,
+    scaled_wander,
 )
 from cr_bridge.core.safety import CommandGuard
 from cr_sim import conversions as conv
@@ -149,6 +152,7 @@ class RobotNode(Node):
         arena = load_arena(profile.arena.path(), robot_radius=0.0)
         self.arena = scaled_arena(arena, profile.arena.scale(arena.size))
         body = profile.body
+        wander = scaled_wander(wander, profile.arena.scale(arena.size), body.v_max)
         self.wheel_base = body.wheel_base
         self.guard = CommandGuard(body.v_wheel_max or math.inf, self.cfg.watchdog,
                                   body.wheel_base, body.v_max, body.omega_max)

@@ -16,6 +16,7 @@ is already on the ROS graph (its ``odom``, ``scan`` and ``cmd_vel``) by its prof
   world's lockstep), which frame to read and which frames wait for the arbiter's decision;
 * :func:`choose_cmd_vel_type`: Twist or TwistStamped, from the parameter or from the types of
   the robot's ``cmd_vel`` subscribers on the graph;
+* :func:`scaled_wander`: the simulator's wander to the next start at the profile's size;
 * :func:`robot_topic`, :func:`clashes`: the robot's topic names (absolute) and the check that
   none of them is one of the interface's;
 * :func:`scaled_arena`: the arena file's layout at the profile's size.
@@ -24,7 +25,7 @@ is already on the ROS graph (its ``odom``, ``scan`` and ``cmd_vel``) by its prof
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 from clis_base.instants import TOL, DecisionClock
@@ -33,6 +34,7 @@ from cr_sim.core.arena import Arena, Box, scaled_arena  # noqa: F401 - its users
 from cr_sim.core.profile import RobotProfile, ScanSpec, Topics
 from cr_sim.core.robot import twist_to_wheels
 from cr_sim.core.sim import EpisodeParams
+from cr_sim.core.wander import WanderParams
 import numpy as np
 
 from cr_bridge.core.episode import ContactParams, Reading
@@ -40,7 +42,7 @@ from cr_bridge.core.episode import ContactParams, Reading
 __all__ = [
     'CMD_VEL_MSG_TYPES', 'ROBOT_TOPICS', 'INTERFACE_TOPICS', 'Scan', 'SectorReader',
     'RobotReader', 'EpisodeRules', 'episode_rules', 'Freshness', 'Lockstep',
-    'choose_cmd_vel_type',
+    'choose_cmd_vel_type', 'scaled_wander',
     'robot_topic', 'clashes', 'finite_or_zero', 'scaled_arena',
 ]
 
@@ -187,7 +189,8 @@ def episode_rules(profile: RobotProfile, dt: float, reward_goal: float,
     * reached, rule ``size``: the destination's apparent width at least
       ``episode.reached.width_deg`` (``goal_width``); rule ``range``: the scan's return in its
       bearing at most ``episode.reached.distance`` from the body (``goal_radius``);
-    * collision: a sector below ``episode.collision_range`` (the contact rule ``ir_contact``);
+    * collision: a sector below ``episode.collision_range`` (the contact rule ``ir_contact``),
+      or one of ``episode.collision_sectors`` (the reading's ``bump``, :class:`RobotReader`);
     * ``time_limit`` and ``wander_time`` of the profile; ``dt``: the node's period.
 
     Raises
@@ -208,10 +211,38 @@ def episode_rules(profile: RobotProfile, dt: float, reward_goal: float,
         'wander_time': spec.wander_time}, where='episode')
     # built directly: collision_range was range-checked by the profile (ContactParams'
     # ir_contact range is the Cyber Rodent's IR range)
-    contact = ContactParams(bump=False, accel_threshold=0.0, ir_contact=spec.collision_range)
+    contact = ContactParams(bump=bool(spec.collision_sectors) and spec.collision_range > 0.0,
+                            accel_threshold=0.0, ir_contact=spec.collision_range)
     if reached.rule == 'size':
         return EpisodeRules(episode, contact, 0.0, math.radians(reached.width_deg), 'size')
     return EpisodeRules(episode, contact, reached.distance, 0.0, 'range')
+
+
+def scaled_wander(wander: WanderParams, scale: float, v_max: float) -> WanderParams:
+    """The simulator's wander policy (set for the CR's arena) at the profile's size.
+
+    Its speeds, steering and avoidance distance are multiplied by the arena's ``scale``
+    (:meth:`~cr_sim.core.profile.ArenaSpec.scale`, by which every length of the layout is
+    multiplied), so that a wander of ``episode.wander_time`` moves the robot the same share of
+    its arena as the CR's moves it in the paper's (the next start is elsewhere, not where the
+    last episode ended); the speeds at most ``v_max`` (the profile's; 0 = no limit).
+
+    Parameters
+    ----------
+    wander : WanderParams
+        The simulator's (``config/sim.yaml``, section ``wander``).
+    scale : float
+        The layout's scale (1: the CR's arena, the wander as it is).
+    v_max : float
+        The robot's forward speed limit [m/s].
+    """
+    def speed(x: float) -> float:
+        return min(x * scale, v_max) if v_max > 0.0 else x * scale
+
+    return replace(wander, speed=speed(wander.speed), turn_speed=speed(wander.turn_speed),
+                   avoid_distance=wander.avoid_distance * scale,
+                   steer_sigma=wander.steer_sigma * scale,
+                   steer_max=speed(wander.steer_max))
 
 
 class RobotReader:
@@ -223,10 +254,18 @@ class RobotReader:
     rule : str
         ``'size'`` or ``'range'`` (:attr:`EpisodeRules.rule`): with ``'range'`` the reading's
         ``dest_distance`` is the scan's return in the destination's bearing.
+
+    The profile's ``episode.collision_sectors`` (read by :attr:`behind`, None without them)
+    are the reading's bump switch: ``bump`` is 1 when one of them reads less than
+    ``episode.collision_range``.
     """
 
     def __init__(self, profile: RobotProfile, rule: str) -> None:
         self.sectors = SectorReader(profile.scan, profile.body.radius)
+        more = profile.episode.collision_sectors
+        self.behind = (SectorReader(replace(profile.scan, sectors=more), profile.body.radius)
+                       if more else None)
+        self.collision_range = profile.episode.collision_range
         self.wheel_base = profile.body.wheel_base
         self.rule = rule
 
@@ -254,8 +293,10 @@ class RobotReader:
         widths = np.asarray(widths, dtype=np.float64)
         dest = float(bearings[0])
         distance = self.sectors.range_at(scan, dest) if self.rule == 'range' else math.nan
+        bump = int(self.behind is not None
+                   and float(self.behind.read(scan).min()) < self.collision_range)
         return Reading(float(t), self.sectors.read(scan), dest, distance, bearings[1:].copy(),
-                       self.wheels(v, omega), 0, (0.0, 0.0, 0.0), float(widths[0]))
+                       self.wheels(v, omega), bump, (0.0, 0.0, 0.0), float(widths[0]))
 
 
 class Freshness:

@@ -27,8 +27,9 @@ every one):
 * ``colours``: the destination's and each landmark's colour, a colour name (:data:`COLOUR_NAMES`)
   or an explicit HSV box (:class:`HsvRange`, the blob detector's ``ColourRange``);
 * ``episode``: when the destination is reached (its blob's apparent size, or its range on the
-  scan), the collision range on the scan, the time limit, the stale-input timeout and the
-  wander to the next start;
+  scan), the collision range on the scan (the sectors of ``scan``, and the
+  ``collision_sectors`` the modules do not read, e.g. behind the robot), the time limit, the
+  stale-input timeout and the wander to the next start;
 * ``arena``: the arena file and the size its layout is scaled to.
 
 Sectors
@@ -355,6 +356,9 @@ class EpisodeSpec:
     reached: Reached = param(doc='section episode.reached')
     collision_range: float = param(0.0, 10.0, doc='a new collision when a sector reads less; '
                                    '0 = none [m]')
+    collision_sectors: tuple[Sector, ...] = param(doc='more sectors of the scan for the '
+                                                  'collisions only (behind the robot, where '
+                                                  'no module looks); [] = none')
     time_limit: float = param(1.0, 3600.0, doc='an episode ends (timeout) after this [s]')
     stale_timeout: float = param(0.01, 10.0, doc='odom, scan or camera older than this: the '
                                  'command is zero [s]')
