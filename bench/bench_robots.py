@@ -1,8 +1,8 @@
 """CLIS through the standard path: learning on the Husky in PyBullet, or on our simulator.
 
-    python bench/bench_robots.py              # the Husky: View 3 seeds x 60, Async 1 x 24
+    python bench/bench_robots.py              # the Husky: View 3 seeds x 72, Async 1 x 24
     python bench/bench_robots.py [--profile husky] [--conditions view,async:1:24] [--seeds 3]
-                                 [--episodes 60] [--jobs 4] [--camera 160x120]
+                                 [--episodes 72] [--jobs 4] [--camera 160x120]
                                  [--time-limit 45] [--wander 5] [--out docs/figures/robots]
     python bench/bench_robots.py --profile cr --native --conditions view,async --episodes 300 \
         --jobs 3 --time-limit 60 --wander 5 --out docs/figures/robots/cr
@@ -368,7 +368,7 @@ def main() -> int:
                    help='conditions, each on --seeds seeds and --episodes episodes, or C:N '
                         'on N seeds, or C:N:E on N seeds and E episodes')
     p.add_argument('--seeds', type=int, default=3)
-    p.add_argument('--episodes', type=int, default=60)
+    p.add_argument('--episodes', type=int, default=72)
     p.add_argument('--rtf', type=float, default=0.0,
                    help='the world clock / wall clock (0: as fast as the graph answers)')
     p.add_argument('--jobs', type=int, default=4, help='runs at a time')

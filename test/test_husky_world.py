@@ -77,6 +77,24 @@ def test_scan_never_sees_the_robot_itself(monkeypatch):
     np.testing.assert_allclose(inside, above, atol=0.01)
 
 
+def test_the_camera_never_sees_the_robots_own_meshes_which_are_not_drawn():
+    # driving, turning, braking and reversing (the chassis pitches and rolls): each frame is
+    # the same with the robot's meshes drawn, which the world leaves out to save their cost
+    with make(width=160, height=120) as w:
+        alphas = [v[7][3] for v in w._c.getVisualShapeData(w.robot)]
+        assert alphas and max(alphas) == 0.0, 'not drawn by default'
+        for k in range(12):
+            w.set_command(1.0 if k < 8 else -1.0, 0.8 if k % 4 < 2 else -0.8)
+            run_for(w, 0.25)
+            left_out = w.image()
+            w.show_robot(True)
+            drawn = w.image()
+            w.show_robot(False)
+            np.testing.assert_array_equal(left_out, drawn)
+        w.show_robot(True)
+        assert min(v[7][3] for v in w._c.getVisualShapeData(w.robot)) > 0.0
+
+
 def test_image_shows_the_red_landmark_where_the_pinhole_projects_it():
     # L1 (red) stands on the east wall at (5.0, 2.5); the robot looks east, 0.2 rad to the right
     with make(start='', x=1.5, y=2.0, yaw=-0.2) as w:

@@ -50,6 +50,9 @@ Sensors
   (:data:`LIGHT`). Square pixels, ``fx = fy = (width / 2) / tan(hfov / 2)``; the principal
   point is where TinyRenderer puts the optical axis, ``(width / 2, height / 2 - 1)`` in the ROS
   convention (pixel ``i``'s value is the scene at ``i``): it samples each pixel at a corner.
+  The robot's own meshes are not drawn (transparent): the camera, at the front looking
+  forward, never sees them (the same image, :meth:`HuskyWorld.show_robot`), and TinyRenderer
+  rasterises every triangle in view or not: they were two thirds of a 160 x 120 frame's cost.
 
 Time: the physics runs at :data:`PHYSICS_HZ` (``setTimeStep(1 / 240)``); :attr:`HuskyWorld.t`
 is the sim time of the state, ``steps / 240``, from 0.
@@ -377,7 +380,16 @@ class HuskyWorld:
         for j in self.wheels:
             c.changeDynamics(self.robot, j,
                              anisotropicFriction=(1.0, p.lateral_friction_ratio, 1.0))
+        self._robot_rgba = [(v[1], v[7]) for v in c.getVisualShapeData(self.robot)]
+        self.show_robot(False)
         self._drive(0.0, 0.0)
+
+    def show_robot(self, show: bool) -> None:
+        """Draw the robot's own meshes in the camera's images or not (not: the default; the
+        camera never sees them, module docstring)."""
+        for link, rgba in self._robot_rgba:
+            self._c.changeVisualShape(self.robot, link,
+                                      rgbaColor=rgba if show else (*rgba[:3], 0.0))
 
     def _intrinsics(self) -> Intrinsics:
         p = self.params
