@@ -28,7 +28,9 @@ Time: the physics steps at 240 Hz from sim time 0; a message is published at the
 at or after each multiple of its period and stamped with that step's time (the state it
 describes); ``/clock`` comes first. ``real_time_factor`` paces the physics against the wall
 clock (1 = real time, 0 = as fast as the CPU goes); commands are taken every
-:data:`SPIN_EVERY` steps. The node's own ROS clock is the wall's.
+:data:`SPIN_EVERY` steps (in lockstep at 0, unpaced: at the held frames, where its commands
+come, and every :data:`SPIN_EVERY` steps only while it runs free after a timeout). The node's
+own ROS clock is the wall's.
 
 Lockstep (``lockstep``, off by default; like Gazebo's or PX4 SITL's lockstep, for benchmarks
 and tests that must not depend on the host's speed): the world waits for its controller. After
@@ -300,8 +302,8 @@ class WorldNode(Node):
 def run(node: WorldNode, executor: SingleThreadedExecutor,
         stop: Callable[[], bool] = lambda: False) -> None:
     """Step the world at ``real_time_factor`` x the wall clock until rclpy shuts down or
-    ``stop()``, taking the commands every :data:`SPIN_EVERY` steps (and while waiting for the
-    wall clock, or for a command under lockstep)."""
+    ``stop()``, taking the commands every :data:`SPIN_EVERY` steps (in lockstep unpaced, only
+    while it runs free) and while waiting for the wall clock, or for a command under lockstep."""
     rtf = node.cfg.real_time_factor
     wall0, t0 = time.monotonic(), node.world.t
     since = 0
@@ -312,7 +314,10 @@ def run(node: WorldNode, executor: SingleThreadedExecutor,
             continue
         since = 0
         if rtf <= 0.0:
-            executor.spin_once(timeout_sec=0.0)
+            # in lockstep the commands come while a frame is held (wait_for_command serves
+            # them); an executor's turn between frames would cost as much CPU as the physics
+            if node.hold is None or node.hold.free:
+                executor.spin_once(timeout_sec=0.0)
             continue
         target = wall0 + (node.world.t - t0) / rtf
         now = time.monotonic()
