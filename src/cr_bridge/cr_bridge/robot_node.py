@@ -150,9 +150,10 @@ class RobotNode(Node):
         rules = episode_rules(profile, self.cfg.period, float(values['episode']['reward_goal']),
                               float(values['episode']['reward_collision']))
         arena = load_arena(profile.arena.path(), robot_radius=0.0)
-        self.arena = scaled_arena(arena, profile.arena.scale(arena.size))
+        scale = profile.arena.scale(arena.size)
+        self.arena = scaled_arena(arena, scale)
         body = profile.body
-        wander = scaled_wander(wander, profile.arena.scale(arena.size), body.v_max)
+        wander = scaled_wander(wander, scale, body.v_max)
         self.wheel_base = body.wheel_base
         self.guard = CommandGuard(body.v_wheel_max or math.inf, self.cfg.watchdog,
                                   body.wheel_base, body.v_max, body.omega_max)
@@ -215,7 +216,8 @@ class RobotNode(Node):
         self.get_logger().info(
             f'profile {self.cfg.profile}: odom {robot["odom"]}, scan {robot["scan"]}, cmd_vel '
             f'{self.cmd_vel_topic} ({self.setting}); stale timeout '
-            f'{profile.episode.stale_timeout} s, start {self.cfg.start}'
+            f'{profile.episode.stale_timeout} s, start {self.cfg.start}; wander at the '
+            f'arena scale x{scale:g}: {wander.speed:g} m/s'
             + (', lockstep' if self.lock is not None else ''))
 
     # ------------------------------------------------------------------ helpers
