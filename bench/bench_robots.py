@@ -1,8 +1,8 @@
 """CLIS through the standard path: learning on the Husky in PyBullet, or on our simulator.
 
-    python bench/bench_robots.py              # the Husky: View 3 seeds x 72, Async 1 x 24
+    python bench/bench_robots.py              # the Husky: View 3 seeds x 135, Async 1 x 24
     python bench/bench_robots.py [--profile husky] [--conditions view,async:1:24] [--seeds 3]
-                                 [--episodes 72] [--jobs 4] [--camera 160x120]
+                                 [--episodes 135] [--jobs 4] [--camera 160x120]
                                  [--time-limit 45] [--wander 5] [--out docs/figures/robots]
     python bench/bench_robots.py --profile cr --native --conditions view,async --episodes 300 \
         --jobs 3 --time-limit 60 --wander 5 --out docs/figures/robots/cr
@@ -29,9 +29,9 @@ anything.
 
 Both robots wait for the graph: our simulator always, the Husky world in lockstep (its
 ``lockstep`` parameter and ``clis run --lockstep``: it holds its clock at each camera frame
-until the command on it; frames at 10 Hz, its default camera and lidar rate, when every
-decision period of the condition is a whole number of them, as View's 0.5 s; else 20 Hz), so
-that each decision is made on the frame of its instant however loaded the host is (the table
+until the command on it; its camera and lidar at the slowest rate at which every decision
+falls on a frame and no input is older than half the profile's ``stale_timeout``: View 4 Hz,
+Async 20 Hz, :func:`frame_rate`), so that each decision is made on the frame of its instant however loaded the host is (the table
 counts the waits that timed out), and its clock runs as fast as the graph
 answers (``--rtf``, the clock over wall time, 0 = no pacing). ``--no-lockstep`` runs the Husky
 world free at ``--rtf`` instead: the modules then decide later in sim time the slower the host,
@@ -58,14 +58,24 @@ T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8
         9: 2.262}
 
 
-def frame_rate(condition: str) -> float:
-    """The Husky world's frame rate in lockstep for ``condition`` [Hz]: 10 Hz (its default
-    camera and lidar rate) when every decision period of the condition's modules is a whole
-    number of its frames (View: 0.5 s), else 20 Hz (Async: 0.25, 0.5 and 1.2 s)."""
+def frame_rate(condition: str, stale_timeout: float) -> float:
+    """The Husky world's frame rate in lockstep for ``condition`` [Hz]: the slowest at which
+    every decision instant of the condition's modules is a frame (the frame period divides
+    each decision period, in whole physics steps of 1/240 s) and no input the adapter reads is
+    ever older than half the profile's ``stale_timeout`` (a frame period at most that): View
+    (0.5 s, stale after 0.5 s) 4 Hz, Async (0.25, 0.5, 0.75 and 1.2 s) 20 Hz. Every frame costs
+    the world a render, a scan and five messages, the adapter and the detector a turn each:
+    the slower the frames, the more episodes the same CPU runs."""
     from clis_learner.core.config import load_clis_params
     from clis_modules.core.modules import condition_periods
-    periods = [tau for _, tau in condition_periods(load_clis_params(), condition)]
-    return 10.0 if all(abs(tau * 10.0 - round(tau * 10.0)) < 1e-9 for tau in periods) else 20.0
+    from husky_world.world import PHYSICS_HZ
+    steps = [round(tau * PHYSICS_HZ) for _, tau in condition_periods(load_clis_params(),
+                                                                     condition)]
+    period = math.gcd(*steps)               # [physics steps] every decision on a frame
+    k = 1
+    while period % k or period / k / PHYSICS_HZ > 0.5 * stale_timeout + 1e-9:
+        k += 1
+    return PHYSICS_HZ / (period / k)
 
 
 def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, domain: int,
@@ -97,7 +107,7 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
     if not done and run_dir.exists():
         shutil.rmtree(run_dir)                  # a run that learned nothing: afresh
     if done < episodes:
-        rate = frame_rate(condition)
+        rate = frame_rate(condition, float(data['episode']['stale_timeout']))
         held = ['-p', 'lockstep:=true', *(x for k in ('clock', 'odom', 'scan', 'image')
                                           for x in ('-p', f'{k}_rate:={rate!r}'))
                 ] if lockstep else []
@@ -368,7 +378,7 @@ def main() -> int:
                    help='conditions, each on --seeds seeds and --episodes episodes, or C:N '
                         'on N seeds, or C:N:E on N seeds and E episodes')
     p.add_argument('--seeds', type=int, default=3)
-    p.add_argument('--episodes', type=int, default=72)
+    p.add_argument('--episodes', type=int, default=135)
     p.add_argument('--rtf', type=float, default=0.0,
                    help='the world clock / wall clock (0: as fast as the graph answers)')
     p.add_argument('--jobs', type=int, default=4, help='runs at a time')
