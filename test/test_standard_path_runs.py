@@ -6,7 +6,8 @@ Clearpath's Husky in its PyBullet world (``husky_world world``, publishing only 
 ``lockstep`` parameter and ``clis run --lockstep``; our simulator always), so the view module
 decides from the first frame of every episode on any host. Judged by what the learner wrote
 (episodes numbered from 1, each within the profile's time limit of sim time, each learned and
-driven by the view module) and by the adapter's log, never by wall-clock rates."""
+driven by the view module) and by the adapter's log, never by wall-clock rates; and, on the
+Husky, by a second run of the same seed: in lockstep the standard path repeats bit for bit."""
 
 from __future__ import annotations
 
@@ -36,25 +37,39 @@ def short_profile(tmp_path: Path, name: str) -> Path:
     return path
 
 
-def clis_run(tmp_path: Path, profile: Path, *extra: str) -> subprocess.CompletedProcess:
+def clis_run(tmp_path: Path, profile: Path, *extra: str, out: str = 'run'
+             ) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, '-m', 'clis_app.cli', 'run', '--robot', 'ros', '--profile',
          str(profile), '--condition', 'view', '--episodes', str(EPISODES), '--out',
-         str(tmp_path / 'run'), '--quiet', '--startup-timeout', '120', *extra],
+         str(tmp_path / out), '--quiet', '--startup-timeout', '120', *extra],
         capture_output=True, text=True, timeout=420)
 
 
-def test_clis_learns_episodes_on_the_husky_world(tmp_path):
+def husky_run(tmp_path: Path, profile: Path, out: str) -> None:
+    """The Husky world in lockstep, its sensors at 4 Hz (View's 0.5 s decisions fall on every
+    other frame: bench_robots' rate), and ``clis run --lockstep`` on it into ``tmp_path/out``."""
     world = start_node('husky_world.world_node', '-p', 'real_time_factor:=0.0',
-                       '-p', 'lockstep:=true', *(x for k in ('odom', 'scan', 'image')
-                                                  for x in ('-p', f'{k}_rate:=20.0')))
+                       '-p', 'lockstep:=true', *(x for k in ('clock', 'odom', 'scan', 'image')
+                                                  for x in ('-p', f'{k}_rate:=4.0')))
     try:
-        proc = clis_run(tmp_path, short_profile(tmp_path, 'husky'), '--lockstep')
+        proc = clis_run(tmp_path, profile, '--lockstep', out=out)
     finally:
         world_out = stop(world)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert 'Traceback' not in world_out, world_out
+
+
+def test_clis_learns_episodes_on_the_husky_world_and_repeats_bit_for_bit(tmp_path):
+    profile = short_profile(tmp_path, 'husky')
+    husky_run(tmp_path, profile, 'run')
     check_run(tmp_path)
+    # the same seed again, a new world: every episode's row and every learned weight repeat
+    husky_run(tmp_path, profile, 'again')
+    first, again = tmp_path / 'run', tmp_path / 'again'
+    assert ((again / 'episodes.csv').read_text(encoding='utf-8')
+            == (first / 'episodes.csv').read_text(encoding='utf-8'))
+    assert (again / 'checkpoint.npz').read_bytes() == (first / 'checkpoint.npz').read_bytes()
 
 
 def test_clis_learns_episodes_on_our_simulator_through_the_standard_path(tmp_path):
