@@ -33,9 +33,10 @@ until the command on it; its camera and lidar at the slowest rate at which every
 falls on a frame and no input is older than half the profile's ``stale_timeout``: View 4 Hz,
 Async 20 Hz, :func:`frame_rate`), so that each decision is made on the frame of its instant
 however loaded the host is (the table counts the waits that timed out), and its clock runs as
-fast as the graph answers (``--rtf``, the clock over wall time, 0 = no pacing). ``--no-lockstep`` runs the Husky
-world free at ``--rtf`` instead: the modules then decide later in sim time the slower the host,
-and the learner says so (records that did not arrive; the table counts these warnings).
+fast as the graph answers (``--rtf``, the clock over wall time, 0 = no pacing).
+``--no-lockstep`` runs the Husky world free at ``--rtf`` instead: the modules then decide later
+in sim time the slower the host, and the learner says so (records that did not arrive; the
+table counts these warnings).
 """
 
 from __future__ import annotations
