@@ -25,7 +25,9 @@ whose summary is saved with all its episodes is not run again, and a run stopped
 goes on from its checkpoint in ``--work`` (``clis run --resume``): an interrupted benchmark
 goes on. ``--only`` runs some of the runs, ``--adopt`` saves a finished run's folder;
 ``--redraw`` draws the table and the figure again from the saved runs without running
-anything.
+anything. ``--ground-truth`` (the Husky) logs the world's true pose of the robot in each run's
+folder, which nothing of the graph reads (``bench/husky_starts.py`` tells where each episode
+started).
 
 Both robots wait for the graph: our simulator always, the Husky world in lockstep (its
 ``lockstep`` parameter and ``clis run --lockstep``: it holds its clock at each camera frame
@@ -81,12 +83,15 @@ def frame_rate(condition: str, stale_timeout: float) -> float:
 
 def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, domain: int,
             out: Path, episode_keys: dict, lockstep: bool = False,
-            work: Path = ROOT / 'results' / 'bench_robots', camera: str = '') -> dict:
+            work: Path = ROOT / 'results' / 'bench_robots', camera: str = '',
+            ground_truth: bool = False) -> dict:
     """One run (module docstring): its episodes and costs. ``episode_keys``: the profile's
     ``episode`` keys this benchmark sets (a copy of the profile is run). The run's folder is
     ``work/P-C-seedS/run``: a run stopped before its last episode goes on from its checkpoint
     (``clis run --resume``) the next time. ``camera``: the Husky world's image size
-    ``'WxH'`` ('' = the world's default)."""
+    ``'WxH'`` ('' = the world's default). ``ground_truth`` (the Husky): the world's true pose
+    of the robot, which nothing of the graph reads, logged to ``work/P-C-seedS/ground_truth.csv``
+    (``t,x,y,yaw`` at each odom; :func:`log_ground_truth`)."""
     from clis_app.graph.ros_env import apply_ros_env
     from clis_base.params import config_dir
     import yaml
@@ -115,6 +120,12 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
         if camera:
             w, h = camera.split('x')
             held += ['-p', f'width:={int(w)}', '-p', f'height:={int(h)}']
+        truth = None
+        if ground_truth and profile == 'husky':
+            held += ['-p', 'ground_truth:=true']
+            truth = subprocess.Popen([sys.executable, __file__, '--log-ground-truth',
+                                      str(home / 'ground_truth.csv')], env=env,
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         world = (subprocess.Popen(
             [sys.executable, '-m', 'husky_world.world_node', '--ros-args', '-p',
              f'real_time_factor:={rtf!r}', *held], env=env,
@@ -133,17 +144,49 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
         finally:
             spent += time.monotonic() - t0
             walls.write_text(f'{spent:.1f}')
-            if world is not None:
-                world.send_signal(2)
-                try:
-                    world.wait(10)
-                except subprocess.TimeoutExpired:
-                    world.kill()
+            for node in (world, truth):
+                if node is not None:
+                    node.send_signal(2)
+                    try:
+                        node.wait(10)
+                    except subprocess.TimeoutExpired:
+                        node.kill()
         if proc.returncode != 0:
             raise RuntimeError(f'{condition} seed {seed}: clis run exited '
                                f'{proc.returncode}\n{proc.stderr[-2000:]}')
     return save_run(run_dir, out, profile, rtf, lockstep or profile == 'cr', episode_keys,
                     spent, episodes, camera if profile == 'husky' else '')
+
+
+def log_ground_truth(path: Path) -> None:
+    """A node that appends the Husky world's ``ground_truth`` (its true pose of the robot,
+    frame ``map``) to ``path`` as ``t,x,y,yaw`` until Ctrl-C or SIGINT; run by
+    :func:`run_one` on the run's ROS_DOMAIN_ID (``--log-ground-truth PATH``)."""
+    from nav_msgs.msg import Odometry
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    new = not path.is_file()
+    with open(path, 'a', encoding='utf-8') as fh:
+        if new:
+            fh.write('t,x,y,yaw\n')
+
+        def write(msg: Odometry) -> None:
+            q, pos = msg.pose.pose.orientation, msg.pose.pose.position
+            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            fh.write(f'{t:.6f},{pos.x:.4f},{pos.y:.4f},'
+                     f'{2.0 * math.atan2(q.z, q.w):.4f}\n')
+            fh.flush()
+
+        rclpy.init()
+        node = rclpy.create_node('ground_truth_log')
+        node.create_subscription(Odometry, 'ground_truth', write, 100)
+        try:
+            rclpy.spin(node)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            node.destroy_node()
+            rclpy.try_shutdown()
 
 
 def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
@@ -404,7 +447,14 @@ def main() -> int:
                         'started whose parent was stopped), with --wall-s its wall time')
     p.add_argument('--wall-s', type=float, default=0.0, help='with --adopt')
     p.add_argument('--redraw', action='store_true', help='only the table and the figure')
+    p.add_argument('--ground-truth', action='store_true',
+                   help="husky: log the world's true pose of the robot in each run's folder "
+                        '(ground_truth.csv; bench/husky_starts.py reads it)')
+    p.add_argument('--log-ground-truth', type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
+    if args.log_ground_truth:
+        log_ground_truth(args.log_ground_truth)
+        return 0
     if args.native and args.profile != 'cr':
         p.error("--native compares our simulator's two paths: --profile cr")
     keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
@@ -439,7 +489,8 @@ def main() -> int:
         with ThreadPoolExecutor(args.jobs) as pool:
             futures = [pool.submit(run_one, args.profile, c, s, episodes[c], args.rtf,
                                    pick_domain_id(), args.out, keys, args.lockstep, args.work,
-                                   args.camera if args.profile == 'husky' else '')
+                                   args.camera if args.profile == 'husky' else '',
+                                   args.ground_truth)
                        for c, s in todo]
             for f in futures:
                 r = f.result()
