@@ -3,7 +3,7 @@
     python bench/bench_robots.py              # the Husky: View 3 seeds x 135, Async 1 x 24
     python bench/bench_robots.py [--profile husky] [--conditions view,async:1:24] [--seeds 3]
                                  [--episodes 135] [--jobs 4] [--camera 160x120]
-                                 [--time-limit 45] [--wander 5] [--out docs/figures/robots]
+                                 [--time-limit 45] [--wander S] [--out docs/figures/robots]
     python bench/bench_robots.py --profile cr --native --conditions view,async --episodes 300 \
         --jobs 3 --time-limit 60 --wander 5 --out docs/figures/robots/cr
 
@@ -428,8 +428,10 @@ def main() -> int:
     p.add_argument('--jobs', type=int, default=4, help='runs at a time')
     p.add_argument('--time-limit', type=float, default=45.0,
                    help="the profile's episode.time_limit for the runs [s of the robot's clock]")
-    p.add_argument('--wander', type=float, default=5.0,
-                   help="the profile's episode.wander_time for the runs [s]")
+    p.add_argument('--wander', type=float, default=None,
+                   help="the profile's episode.wander_time for the runs [s] (default: the "
+                        "profile's own; the Husky's 10 s of wander decorrelate an episode's "
+                        'start from where the last one ended)')
     p.add_argument('--out', type=Path, default=ROOT / 'docs' / 'figures' / 'robots')
     p.add_argument('--lockstep', action=argparse.BooleanOptionalAction, default=True,
                    help='husky: the world waits for the graph (module docstring)')
@@ -457,6 +459,11 @@ def main() -> int:
         return 0
     if args.native and args.profile != 'cr':
         p.error("--native compares our simulator's two paths: --profile cr")
+    if args.wander is None:
+        from clis_base.params import config_dir
+        import yaml
+        args.wander = float(yaml.safe_load((config_dir() / 'robots' / f'{args.profile}.yaml')
+                                           .read_text())['episode']['wander_time'])
     keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
     for run_dir in args.adopt:
         r = save_run(run_dir, args.out, args.profile, args.rtf,
