@@ -162,6 +162,7 @@ def log_ground_truth(path: Path) -> None:
     """A node that appends the Husky world's ``ground_truth`` (its true pose of the robot,
     frame ``map``) to ``path`` as ``t,x,y,yaw`` until Ctrl-C or SIGINT; run by
     :func:`run_one` on the run's ROS_DOMAIN_ID (``--log-ground-truth PATH``)."""
+    from cr_bridge.conversions import odom_from_msg
     from nav_msgs.msg import Odometry
     import rclpy
     from rclpy.executors import ExternalShutdownException
@@ -171,10 +172,8 @@ def log_ground_truth(path: Path) -> None:
             fh.write('t,x,y,yaw\n')
 
         def write(msg: Odometry) -> None:
-            q, pos = msg.pose.pose.orientation, msg.pose.pose.position
-            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-            fh.write(f'{t:.6f},{pos.x:.4f},{pos.y:.4f},'
-                     f'{2.0 * math.atan2(q.z, q.w):.4f}\n')
+            t, (x, y, yaw), _, _ = odom_from_msg(msg)
+            fh.write(f'{t:.6f},{x:.4f},{y:.4f},{yaw:.4f}\n')
             fh.flush()
 
         rclpy.init()
@@ -388,7 +387,7 @@ def report(out: Path, profile: str) -> str:
         for (cond, path), rs in by.items():
             for r in sorted(rs, key=lambda r: r['seed']):
                 eps = [e['reached'] for e in sorted(r['episodes'], key=lambda e: e['episode'])]
-                w = max(5, len(eps) // 20)
+                w = min(max(5, len(eps) // 20), len(eps))   # a run shorter than 5: all of it
                 ma = np.convolve(eps, np.ones(w) / w, mode='valid')
                 runs_ax.plot(np.arange(w, len(eps) + 1), 100 * ma, color=colour[cond],
                              ls=('--', '-', ':', '-.')[(r['seed'] % 3) + 1
@@ -460,10 +459,8 @@ def main() -> int:
     if args.native and args.profile != 'cr':
         p.error("--native compares our simulator's two paths: --profile cr")
     if args.wander is None:
-        from clis_base.params import config_dir
-        import yaml
-        args.wander = float(yaml.safe_load((config_dir() / 'robots' / f'{args.profile}.yaml')
-                                           .read_text())['episode']['wander_time'])
+        from cr_sim.core.profile import load_profile
+        args.wander = load_profile(args.profile).episode.wander_time
     keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
     for run_dir in args.adopt:
         r = save_run(run_dir, args.out, args.profile, args.rtf,

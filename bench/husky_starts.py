@@ -21,15 +21,15 @@ import math
 from pathlib import Path
 import sys
 
+from cr_sim.core.arena import load_arena
 import numpy as np
-import yaml
 
 
 def starts(run_home: Path) -> list[tuple[int, bool, float, float]]:
     """``(episode, reached, distance [m], bearing [deg])`` of each episode of the run in
     ``run_home`` (a ``bench_robots.py`` run folder with ``ground_truth.csv``)."""
     truth = np.loadtxt(run_home / 'ground_truth.csv', delimiter=',', skiprows=1, ndmin=2)
-    dest = yaml.safe_load((run_home / 'run' / 'arena.yaml').read_text())['destination']
+    dest = load_arena(run_home / 'run' / 'arena.yaml', robot_radius=0.0).destination
     with open(run_home / 'run' / 'episodes.csv', newline='') as fh:
         rows = list(csv.DictReader(fh))
     out = []
@@ -40,7 +40,7 @@ def starts(run_home: Path) -> list[tuple[int, bool, float, float]]:
             raise SystemExit(f'{run_home}: no true pose within 50 ms of the start of episode '
                              f"{r['episode']} ({t0:.2f} s)")
         _, x, y, yaw = truth[i]
-        dx, dy = dest['x'] - x, dest['y'] - y
+        dx, dy = dest.x - x, dest.y - y
         bearing = (math.atan2(dy, dx) - yaw + math.pi) % (2.0 * math.pi) - math.pi
         out.append((int(r['episode']), r['reached'] == '1', math.hypot(dx, dy),
                     math.degrees(bearing)))
