@@ -84,14 +84,15 @@ def frame_rate(condition: str, stale_timeout: float) -> float:
 def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, domain: int,
             out: Path, episode_keys: dict, lockstep: bool = False,
             work: Path = ROOT / 'results' / 'bench_robots', camera: str = '',
-            ground_truth: bool = False) -> dict:
+            ground_truth: bool = False, params: dict | None = None) -> dict:
     """One run (module docstring): its episodes and costs. ``episode_keys``: the profile's
     ``episode`` keys this benchmark sets (a copy of the profile is run). The run's folder is
     ``work/P-C-seedS/run``: a run stopped before its last episode goes on from its checkpoint
     (``clis run --resume``) the next time. ``camera``: the Husky world's image size
     ``'WxH'`` ('' = the world's default). ``ground_truth`` (the Husky): the world's true pose
     of the robot, which nothing of the graph reads, logged to ``work/P-C-seedS/ground_truth.csv``
-    (``t,x,y,yaw`` at each odom; :func:`log_ground_truth`)."""
+    (``t,x,y,yaw`` at each odom; :func:`log_ground_truth`). ``params``: CLIS keys (dotted)
+    for the run, given to ``clis run`` as a ``--params`` file in its folder."""
     from clis_app.graph.ros_env import apply_ros_env
     from clis_base.params import config_dir
     import yaml
@@ -103,6 +104,12 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
     data['episode'].update(episode_keys)
     profile_file = home / f'{profile}.yaml'
     profile_file.write_text(yaml.safe_dump(data))
+    given = []
+    if params:
+        from clis_base.params import unflatten
+        (home / 'params.yaml').write_text(yaml.safe_dump(
+            {'/**': {'ros__parameters': unflatten(params)}}))
+        given = ['--params', str(home / 'params.yaml')]
     walls = home / 'wall_s'
     spent = float(walls.read_text()) if walls.is_file() else 0.0
     done = 0
@@ -139,7 +146,8 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
                 [sys.executable, '-m', 'clis_app.cli', '--domain-id', str(domain), 'run',
                  '--robot', 'ros', '--profile', str(profile_file), '--condition', condition,
                  '--seed', str(seed), '--episodes', str(episodes - done), '--out',
-                 str(run_dir), '--quiet', *speed, *go_on], env=env, capture_output=True,
+                 str(run_dir), '--quiet', *speed, *given, *go_on], env=env,
+                capture_output=True,
                 text=True)
         finally:
             spent += time.monotonic() - t0
@@ -155,7 +163,7 @@ def run_one(profile: str, condition: str, seed: int, episodes: int, rtf: float, 
             raise RuntimeError(f'{condition} seed {seed}: clis run exited '
                                f'{proc.returncode}\n{proc.stderr[-2000:]}')
     return save_run(run_dir, out, profile, rtf, lockstep or profile == 'cr', episode_keys,
-                    spent, episodes, camera if profile == 'husky' else '')
+                    spent, episodes, camera if profile == 'husky' else '', params)
 
 
 def log_ground_truth(path: Path) -> None:
@@ -189,10 +197,12 @@ def log_ground_truth(path: Path) -> None:
 
 
 def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
-             episode_keys: dict, wall: float, planned: int, camera: str = '') -> dict:
+             episode_keys: dict, wall: float, planned: int, camera: str = '',
+             params: dict | None = None) -> dict:
     """The summary of the ``clis run`` in ``run_dir`` (its condition and seed are its
     episodes'; ``planned``: the episodes it was started for, more than it has if it was
-    stopped; ``camera``: the world's image size, if set), saved as
+    stopped; ``camera``: the world's image size, if set; ``params``: the CLIS keys the
+    benchmark gave it, if any), saved as
     ``OUT/runs/P-C-seedS.json``."""
     with open(run_dir / 'episodes.csv', newline='') as fh:
         rows = list(csv.DictReader(fh))
@@ -212,6 +222,7 @@ def save_run(run_dir: Path, out: Path, profile: str, rtf: float, lockstep: bool,
     run = {'profile': profile, 'condition': condition, 'seed': seed, 'rtf': rtf,
            'lockstep': lockstep, 'episode_keys': episode_keys, 'wall_s': round(wall, 1),
            'planned': planned, **({'camera': camera} if camera else {}),
+           **({'params': params} if params else {}),
            'late_warnings': late, 'lockstep_timeouts': timeouts,
            'episodes': [{'episode': int(r['episode']), 'reached': int(r['reached']),
                          'duration': float(r['duration']), 'ret': float(r['ret']),
@@ -451,6 +462,10 @@ def main() -> int:
     p.add_argument('--ground-truth', action='store_true',
                    help="husky: log the world's true pose of the robot in each run's folder "
                         '(ground_truth.csv; bench/husky_starts.py reads it)')
+    p.add_argument('--params', type=Path, action='append', default=[], metavar='FILE',
+                   help='a CLIS parameter file for every run (clis run --params), e.g. '
+                        "bench/view_one_not_visible.yaml: the paper's one not visible feature "
+                        "where the Husky's forward camera turns on three")
     p.add_argument('--log-ground-truth', type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.log_ground_truth:
@@ -462,9 +477,14 @@ def main() -> int:
         from cr_sim.core.profile import load_profile
         args.wander = load_profile(args.profile).episode.wander_time
     keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
+    params: dict = {}
+    for f in args.params:
+        from clis_learner.core.config import check_params_file
+        params.update(check_params_file(f))
     for run_dir in args.adopt:
         r = save_run(run_dir, args.out, args.profile, args.rtf,
-                     args.lockstep or args.profile == 'cr', keys, args.wall_s, args.episodes)
+                     args.lockstep or args.profile == 'cr', keys, args.wall_s, args.episodes,
+                     params=params)
         print(f'adopted {r["condition"]} seed {r["seed"]}: {len(r["episodes"])} episodes')
     if not args.redraw and not args.adopt:
         from concurrent.futures import ThreadPoolExecutor
@@ -494,7 +514,7 @@ def main() -> int:
             futures = [pool.submit(run_one, args.profile, c, s, episodes[c], args.rtf,
                                    pick_domain_id(), args.out, keys, args.lockstep, args.work,
                                    args.camera if args.profile == 'husky' else '',
-                                   args.ground_truth)
+                                   args.ground_truth, params)
                        for c, s in todo]
             for f in futures:
                 r = f.result()

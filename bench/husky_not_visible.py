@@ -3,14 +3,16 @@
     python bench/husky_not_visible.py results/bench_robots/husky-view-seed1/run/checkpoint.npz
                                       [--poses 6] [--seed 5]
 
-The View module's policy in its *not visible* state (paper III-C: the last feature, ``b = e_n``,
-whatever else the robot senses) is a Gaussian over the wheel speeds with the mean
-``v_max W[:, -1]`` (v_max, the module's speed limit at the Husky's size: 1 m/s) and the
-std ``sigma`` of the checkpoint. This drives the Husky world (``husky_world.world``, no ROS)
-with that policy from ``--poses`` random free poses, a decision every 0.5 s for 45 s, and
-counts the decisions in which the robot is stuck: commanded over 0.3 m/s, it moves less than
-5 cm. Also printed: the lidar's nearest return at the end, all around (the profile's
-``episode.collision_sectors`` behind the robot count a collision below 0.65 m from the centre).
+The View module's policy in its *not visible* state (paper III-C: the feature after the RBFs,
+``b = e_n``, whatever else the robot senses; with ``view.lost_side``, which the Husky's forward
+camera turns on, the first of three: *not yet seen* in the episode) is a Gaussian over the
+wheel speeds with the mean ``v_max W[:, n_theta n_dist]`` (v_max, the module's speed limit at
+the Husky's size: 1 m/s) and the std ``sigma`` of the checkpoint. This drives the Husky world
+(``husky_world.world``, no ROS) with that policy from ``--poses`` random free poses, a
+decision every 0.5 s for 45 s, and counts the decisions in which the robot is stuck: commanded
+over 0.3 m/s, it moves less than 5 cm. Also printed: the lidar's nearest return at the end,
+all around (the profile's ``episode.collision_sectors`` behind the robot count a collision
+below 0.65 m from the centre).
 """
 
 from __future__ import annotations
@@ -29,10 +31,16 @@ def main() -> int:
     p.add_argument('--seed', type=int, default=5)
     args = p.parse_args()
     from clis_base.params import ConfigError
+    from clis_learner.core.config import load_clis_params
     from cr_sim.core.profile import load_profile
     from husky_world.world import HuskyWorld, HuskyWorldParams
     z = np.load(args.checkpoint)
-    mean = z['view.W'][:, -1] * 1.0                 # x v_max = 1 m/s (view at the Husky's size)
+    _, view = load_clis_params().module('view')
+    W = z['view.W'] * 1.0                           # noqa: N806 - x v_max = 1 m/s at its size
+    mean = W[:, view.n_theta * view.n_dist]         # not visible (not yet seen)
+    if W.shape[1] == view.n_theta * view.n_dist + 3:
+        print(f'last seen on the left: mean wheels {np.round(W[:, -2], 3).tolist()} m/s, on '
+              f'the right: {np.round(W[:, -1], 3).tolist()} m/s')
     sigma = float(np.asarray(z['view.sigma']).ravel()[0])
     body = load_profile('husky').body
     rng = np.random.default_rng(args.seed)

@@ -234,6 +234,34 @@ def test_view_and_place_features(params):
     assert np.ptp(place.localizer.belief) == 0.0
 
 
+def test_view_lost_side_splits_not_visible_by_where_it_was_last_seen():
+    """``view.lost_side`` (a forward camera's profile): the RBFs as they are where the
+    destination is seen; where it is not, *not yet* until a decision has seen it, then the
+    side of the last decision that did (its ``sense``, through the Decider as the runner and
+    the nodes call it); an episode's start forgets it."""
+    from clis_modules.core.decider import Decider
+    from clis_modules.core.plugin import Percept
+    plain = make_modules(load_clis_params(), 'view', LANDMARKS, 1.5)[0]
+    (view,) = make_modules(load_clis_params(overrides={'view.lost_side': True}), 'view',
+                           LANDMARKS, 1.5)
+    assert view.n == plain.n + 2
+    lm = np.full(4, math.nan)
+    decider = Decider(view, np.random.default_rng(0), 0.16)
+
+    def column(dest: float) -> int | None:
+        b = decider.decide(Percept(0.0, dest, 0.3, lm)).b
+        hot = np.flatnonzero(b == 1.0)
+        return None if hot.size == 0 else int(hot[0]) - plain.n + 1
+
+    assert [column(d) for d in (math.nan, 0.4, math.nan, math.nan, -0.1, math.nan, 0.0,
+                                math.nan)] == [0, None, 1, 1, None, 2, None, 1]
+    b = decider.decide(Percept(0.0, -0.3, 0.2, lm)).b
+    assert np.array_equal(b[:plain.n], plain.features(-0.3, 0.2)) and not b[plain.n:].any()
+    assert decider.observe(Percept(0.0, math.nan, 0.2, lm))[plain.n + 1] == 1.0   # right
+    decider.reset()
+    assert column(math.nan) == 0
+
+
 def test_place_rbf_features_project_the_belief_and_generalise_to_neighbouring_cells():
     """place.features.kind = rbf: b = P belief with P's columns normalised; a belief on one
     cell shares features with the neighbouring cell (what is learned carries over), which

@@ -126,6 +126,9 @@ def test_the_models_lengths_follow_the_robot_and_the_runs_preset():
         ratio = [(pdf(k, mu) + eps) / (pdf(k, mu2) + eps)
                  for k, eps in ((s, robot.common.epsilon), (1.0, base.common.epsilon))]
         assert ratio[0] == pytest.approx(ratio[1])
+        # the Husky's forward camera splits view's not visible feature by side
+        assert keys['view']['lost_side'] is True and big['view'].lost_side
+    assert 'lost_side' not in robot_params('husky', {'view.lost_side': False}).get('view', {})
     assert robot_params('cr') == {}
 
 

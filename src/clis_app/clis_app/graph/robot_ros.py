@@ -24,6 +24,12 @@ every wheel-speed std (``sigma``,                  ``x s`` (exploration in propo
 speeds)                                            so): (7)'s ratios are unchanged
 =================================================  ==============================================
 
+And whatever the robot's size, a forward camera (``camera.model: pinhole``) turns on the view
+instances' ``lost_side`` (three *not visible* features, by the side the destination was last
+seen on: :mod:`clis_modules.plugins.view`) where the run's ``--params`` do not set it: such a
+camera loses the destination at the edges of its field of view, the omni-directional camera of
+the paper's robot only behind obstacles.
+
 The robot then moves as the Cyber Rodent would on the layout at the robot's size: its wheel
 speeds ``s`` times, its yaw rates about the same where its wheel base is in proportion (the
 Husky's 0.555 m; the Cyber Rodent's 0.16 m times ``s``, 0.53 m). The improved preset's steps
@@ -55,18 +61,20 @@ PARAMS_FILE = 'robot_params.yaml'
 def robot_files(profile: str, out: Path, write: bool = True,
                 overrides: Mapping[str, Any] | None = None) -> tuple[str, Path | None]:
     """``(arena_file, params_file)`` of a run on the robot of ``profile`` into ``out``: the
-    profile's own arena file and None when it is not scaled; else the scaled files (written
-    with ``write``). ``overrides``: the run's CLIS keys (its preset and ``--params``, dotted),
-    the values that are scaled."""
+    profile's own arena file when it is not scaled, else the scaled one; the parameter file,
+    or None when no key follows the robot (both written with ``write``). ``overrides``: the
+    run's CLIS keys (its preset and ``--params``, dotted), the values that are scaled and
+    the keys that the run sets itself."""
     robot, arena, scale = _layout(profile)
-    if scale == 1.0:
-        return (str(robot.arena.path()) if robot.arena.file else ''), None
-    arena_file, params_file = out / ARENA_FILE, out / PARAMS_FILE
-    if write:
+    keys = robot_params(profile, overrides)
+    arena_file = (str(robot.arena.path()) if robot.arena.file else '') if scale == 1.0 \
+        else out / ARENA_FILE
+    params_file = out / PARAMS_FILE if keys else None
+    if write and scale != 1.0:
         files.write_text(arena_file, yaml.safe_dump(arena_data(scaled_arena(arena, scale)),
                                                      sort_keys=False))
-        files.write_text(params_file, yaml.safe_dump(
-            {'/**': {'ros__parameters': robot_params(profile, overrides)}}))
+    if write and keys:
+        files.write_text(params_file, yaml.safe_dump({'/**': {'ros__parameters': keys}}))
     return str(arena_file), params_file
 
 
@@ -85,13 +93,19 @@ def robot_arena(profile: str) -> Arena:
 
 def robot_params(profile: str, overrides: Mapping[str, Any] | None = None) -> dict:
     """The CLIS keys that follow the robot of ``profile`` (module docstring), nested by
-    section; empty for a robot at the layout's size. ``overrides``: as :func:`robot_files`."""
+    section; empty for a robot at the layout's size with an omni-directional camera.
+    ``overrides``: as :func:`robot_files`."""
     robot, _, scale = _layout(profile)
-    if scale == 1.0:
-        return {}
+    given = dict(overrides or {})
+    clis = load_clis_params(overrides=given or None)
     body = robot.body
-    return module_params(load_clis_params(overrides=dict(overrides or {}) or None), scale,
-                         robot.scan.range_max, body.v_wheel_max or body.v_max)
+    out = {} if scale == 1.0 else module_params(clis, scale, robot.scan.range_max,
+                                                 body.v_wheel_max or body.v_max)
+    if robot.camera.model == 'pinhole':              # a forward camera
+        for name, _, prm in clis.instances:
+            if hasattr(prm, 'lost_side') and f'{name}.lost_side' not in given:
+                out.setdefault(name, {})['lost_side'] = True
+    return out
 
 
 def module_params(clis: ClisParams, scale: float, range_max: float, wheel_limit: float
