@@ -478,9 +478,10 @@ def main() -> int:
         args.wander = load_profile(args.profile).episode.wander_time
     keys = {'time_limit': args.time_limit, 'wander_time': args.wander}
     params: dict = {}
-    for f in args.params:
+    if args.params:
         from clis_learner.core.config import check_params_file
-        params.update(check_params_file(f))
+        for f in args.params:
+            params.update(check_params_file(f))
     for run_dir in args.adopt:
         r = save_run(run_dir, args.out, args.profile, args.rtf,
                      args.lockstep or args.profile == 'cr', keys, args.wall_s, args.episodes,

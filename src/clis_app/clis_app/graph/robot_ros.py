@@ -102,8 +102,9 @@ def robot_params(profile: str, overrides: Mapping[str, Any] | None = None) -> di
     out = {} if scale == 1.0 else module_params(clis, scale, robot.scan.range_max,
                                                  body.v_wheel_max or body.v_max)
     if robot.camera.model == 'pinhole':              # a forward camera
-        for name, _, prm in clis.instances:
-            if hasattr(prm, 'lost_side') and f'{name}.lost_side' not in given:
+        for name, plugin, prm in clis.instances:    # unless set: on the instance, or on the
+            if hasattr(prm, 'lost_side') and not {  # plug-in's section it inherits from
+                    f'{name}.lost_side', f'{plugin}.lost_side'} & given.keys():
                 out.setdefault(name, {})['lost_side'] = True
     return out
 
