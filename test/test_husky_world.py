@@ -353,6 +353,9 @@ def test_node_publishes_the_standard_topics_and_obeys_cmd_vel(probe):
             return {name for name, _ in node.get_publisher_names_and_types_by_node(
                 'husky_world', '/')} - {'/rosout', '/parameter_events'}
         assert probe.spin_until(lambda: published() == TOPICS, 10), published()
+        # an endpoint can be discovered before its node's name (_NODE_NAME_UNKNOWN_)
+        probe.spin_until(lambda: [s.node_name for s in node.get_subscriptions_info_by_topic(
+            '/cmd_vel')] == ['husky_world'], 10)
         subs = node.get_subscriptions_info_by_topic('/cmd_vel')
         assert [(s.node_name, s.topic_type) for s in subs] == \
             [('husky_world', 'geometry_msgs/msg/TwistStamped')]

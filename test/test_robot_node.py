@@ -223,8 +223,14 @@ def test_a_namespaced_node_with_remapped_robot_topics(fake):
                                and robot.msgs[f'{NS}/episode'], timeout=15.0), \
             {k: len(v) for k, v in robot.msgs.items()}
         n = robot.node
-        graph = {name: [i.node_name for i in n.get_publishers_info_by_topic(name)]
-                 for name in ('/clock', f'{NS}/camera', '/cmd_vel', f'{NS}/ir')}
+        graph: dict = {}
+
+        def publishers() -> bool:
+            # an endpoint can be discovered before its node's name (_NODE_NAME_UNKNOWN_)
+            graph.update({name: [i.node_name for i in n.get_publishers_info_by_topic(name)]
+                          for name in ('/clock', f'{NS}/camera', '/cmd_vel', f'{NS}/ir')})
+            return not any(u.startswith('_NODE_NAME_UNKNOWN') for v in graph.values() for u in v)
+        robot.run_until(publishers, timeout=10.0)
         robot.run_until(lambda: False, timeout=0.2)
         assert moving(robot.cmds[-1])
         proc.send_signal(15)
