@@ -88,13 +88,12 @@ class LostSideViewModel(ViewModel):
         self.side = 0
 
     def features(self, percept: Percept) -> np.ndarray:
-        b = super().features(percept)
         out = np.zeros(self.n)
         if math.isfinite(percept.dest_bearing):
-            out[:b.size] = b
+            out[:self.grid.n] = super().features(percept)
         else:
             # not visible -> the feature of the side it was last seen on (not yet, left, right)
-            out[b.size - 1 + self.side] = 1.0
+            out[self.grid.n - 1 + self.side] = 1.0
         return out
 
     def reset(self) -> None:
